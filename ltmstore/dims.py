@@ -1,0 +1,187 @@
+"""Dimension names, lattice geometry and the store schema, defined once.
+
+Conventions
+-----------
+* Pixels: ``y`` is the row (grows downwards), ``x`` the column.
+* Object plane: ``z = 0``; a pixel centre sits at ``X = (x + 0.5 - W/2) * pitch`` (right) and
+  ``Y = (H/2 - y - 0.5) * pitch`` (up), in plane units (metres).
+* Illumination plane: parallel to the object at height ``h``; a light at ``(r, s)`` sits at
+  ``(X, Y, Z) = (r, s, h)``: ``r`` along image right, ``s`` along image up (the RTI convention:
+  ``r = h lx / lz``, ``s = h ly / lz``).
+* View plane (6D): camera centre at ``(p, q)`` on a plane parallel to the object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ltmstore.errors import LtmError
+
+T, Y, X = "t", "y", "x"
+R, S, P, Q = "r", "s", "p", "q"
+CHANNEL, COLOR = "channel", "color"
+LIGHT_DIMS = (R, S)
+VIEW_DIMS = (P, Q)
+PIXEL_DIMS = (Y, X)
+CHROMA_CHANNELS = ("cb", "cr")
+COLOR_CHANNELS = ("R", "G", "B")
+
+# Store variables (ARCHITECTURE.md section 3.2).
+FRAMES = "frames"  # (t, y, x) linear luminance
+FRAME_CHROMA = "frame_chroma"  # (t, y, x, channel) linear Cb, Cr; kept so chroma can be refitted
+POSES = ("pose_r", "pose_s", "pose_z", "pose_valid")  # (t,) light position per frame
+SAMPLES = "samples"  # (y, x, r, s[, p, q]) binned means, NaN where unobserved
+COUNT = "count"  # (r, s[, p, q]) number of frames per cell
+LTM = "ltm"  # (y, x, r, s[, p, q]) float32 linear luminance
+CHROMA = "chroma"  # (y, x, channel) chroma as a ratio to luminance (illumination invariant)
+LTM_RGB = "ltm_rgb"  # (y, x, r, s, color) ground truth colour LTM (simulations only)
+
+# BT.601 luma weights; chroma scales so that R = Y + 1.402 Cr, B = Y + 1.772 Cb.
+LUMA = np.array([0.299, 0.587, 0.114])
+
+
+def rgb_to_ycbcr(rgb: np.ndarray) -> np.ndarray:
+    """Linear RGB (..., 3) to Y, Cb, Cr (..., 3), BT.601 weights, no offsets."""
+    rgb = np.asarray(rgb, dtype=np.float32)
+    y = rgb @ LUMA.astype(np.float32)
+    cb = (rgb[..., 2] - y) / 1.772
+    cr = (rgb[..., 0] - y) / 1.402
+    return np.stack([y, cb, cr], axis=-1)
+
+
+def ycbcr_to_rgb(ycc: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rgb_to_ycbcr`."""
+    ycc = np.asarray(ycc)
+    y, cb, cr = ycc[..., 0], ycc[..., 1], ycc[..., 2]
+    r = y + 1.402 * cr
+    b = y + 1.772 * cb
+    g = (y - LUMA[0] * r - LUMA[2] * b) / LUMA[1]
+    return np.stack([r, g, b], axis=-1)
+
+
+@dataclass(frozen=True)
+class Plane:
+    """A rectangle ``[r0, r1] x [s0, s1]`` at height ``height`` above the object (plane units)."""
+
+    r: tuple[float, float]
+    s: tuple[float, float]
+    height: float
+    unit: str = "m"
+
+    def __post_init__(self) -> None:
+        for name, (lo, hi) in (("r", self.r), ("s", self.s)):
+            if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+                raise LtmError(f"plane {name} range {[lo, hi]} must be two finite numbers, min < max")
+        if not (np.isfinite(self.height) and self.height > 0):
+            raise LtmError(f"plane height {self.height!r} must be a positive number")
+
+    @property
+    def area(self) -> float:
+        return (self.r[1] - self.r[0]) * (self.s[1] - self.s[0])
+
+    def contains(self, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """True where ``(r, s)`` lies inside the closed rectangle."""
+        return (r >= self.r[0]) & (r <= self.r[1]) & (s >= self.s[0]) & (s <= self.s[1])
+
+    def to_json(self) -> dict:
+        return {"r": list(self.r), "s": list(self.s), "height": self.height, "unit": self.unit}
+
+    @classmethod
+    def from_json(cls, d: dict) -> Plane:
+        try:
+            return cls(
+                r=(float(d["r"][0]), float(d["r"][1])),
+                s=(float(d["s"][0]), float(d["s"][1])),
+                height=float(d["height"]),
+                unit=str(d.get("unit", "m")),
+            )
+        except (KeyError, TypeError, IndexError, ValueError) as exc:
+            raise LtmError(
+                f"plane {d!r} must look like {{'r': [min, max], 's': [min, max], 'height': h}}"
+            ) from exc
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """A regular lattice of ``shape`` equal cells over a plane rectangle.
+
+    ``shape`` has one entry per lattice dimension (``(R, S)`` for 4D, ``(R, S, P, Q)`` for 6D);
+    ``bounds`` holds ``(lo, hi)`` for each of them.
+    """
+
+    bounds: tuple[tuple[float, float], ...]
+    shape: tuple[int, ...]
+    dims: tuple[str, ...] = LIGHT_DIMS
+
+    def __post_init__(self) -> None:
+        if len(self.bounds) != len(self.shape) or len(self.dims) != len(self.shape):
+            raise LtmError(f"lattice dims {self.dims}, bounds and shape {self.shape} must agree")
+        if any(int(n) < 1 for n in self.shape):
+            raise LtmError(f"lattice shape {self.shape} must have at least one cell per axis")
+
+    @classmethod
+    def from_plane(cls, plane: Plane, shape: tuple[int, int]) -> Lattice:
+        """``shape = (R, S)`` equal cells over the plane rectangle."""
+        return cls(bounds=(plane.r, plane.s), shape=tuple(int(n) for n in shape))
+
+    @classmethod
+    def from_delta(cls, plane: Plane, delta: float) -> Lattice:
+        """Cells of side about ``delta`` (rounded so that a whole number fits each axis)."""
+        if not (np.isfinite(delta) and delta > 0):
+            raise LtmError(f"--delta-rs {delta!r} must be a positive number (plane units)")
+        shape = tuple(
+            max(1, int(round((hi - lo) / delta))) for lo, hi in (plane.r, plane.s)
+        )
+        return cls.from_plane(plane, shape)
+
+    @property
+    def size(self) -> int:
+        """``M``: the number of cells."""
+        return int(np.prod(self.shape))
+
+    @property
+    def deltas(self) -> tuple[float, ...]:
+        return tuple((hi - lo) / n for (lo, hi), n in zip(self.bounds, self.shape, strict=True))
+
+    def centres(self, axis: int) -> np.ndarray:
+        lo, _ = self.bounds[axis]
+        d = self.deltas[axis]
+        return lo + (np.arange(self.shape[axis]) + 0.5) * d
+
+    def coords(self) -> dict[str, np.ndarray]:
+        return {name: self.centres(i) for i, name in enumerate(self.dims)}
+
+    def cell_index(self, *positions: np.ndarray) -> np.ndarray:
+        """Flat (C-order) cell index of each position; -1 outside the lattice.
+
+        Cells are half-open ``[lo, lo + delta)``, except that the upper plane edge belongs to the
+        last cell.
+        """
+        flat = np.zeros(np.shape(positions[0]), dtype=np.int64)
+        inside = np.ones(np.shape(positions[0]), dtype=bool)
+        for axis, pos in enumerate(positions):
+            lo, hi = self.bounds[axis]
+            pos = np.asarray(pos, dtype=np.float64)
+            idx = np.floor((pos - lo) / self.deltas[axis]).astype(np.int64)
+            idx = np.where(pos == hi, self.shape[axis] - 1, idx)
+            inside &= (idx >= 0) & (idx < self.shape[axis]) & np.isfinite(pos)
+            flat = flat * self.shape[axis] + np.clip(idx, 0, self.shape[axis] - 1)
+        return np.where(inside, flat, -1)
+
+    def to_json(self) -> dict:
+        return {"dims": list(self.dims), "bounds": [list(b) for b in self.bounds],
+                "shape": list(self.shape), "deltas": list(self.deltas)}
+
+
+def parse_lattice(text: str) -> tuple[int, int]:
+    """Parse ``--lattice RxS`` (e.g. ``32x32``)."""
+    parts = text.lower().split("x")
+    try:
+        shape = tuple(int(p) for p in parts)
+    except ValueError:
+        shape = ()
+    if len(shape) != 2 or min(shape) < 1:
+        raise LtmError(f"--lattice {text!r} must look like RxS with positive integers, e.g. 32x32")
+    return shape  # type: ignore[return-value]

@@ -1,0 +1,41 @@
+"""The paper's reference: basis pursuit in the DCT domain by LARS, one pixel at a time.
+
+Each pixel solves ``min ||f||_1`` subject to ``H_K^T f = b_K`` with scikit-learn's LARS-Lasso
+path run to a vanishing penalty (its limit is the basis-pursuit solution), then ``t = H^T f``.
+Accurate and slow (0.1-1.5 s per pixel at 1,000-2,500 cells): kept as the yardstick.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from sklearn.exceptions import ConvergenceWarning
+from sklearn.linear_model import LassoLars
+
+from ltmstore.operators import SensingOperator
+
+
+def solve(samples: np.ndarray, *, ndim: int = 2, alpha: float = 1e-7,
+          max_iter: int = 5000) -> np.ndarray:
+    """Reconstruct a batch of LTFs ``(n, *lattice)`` (NaN = unobserved) pixel by pixel.
+
+    Returns
+    -------
+    ndarray of float32, same shape as ``samples``.
+    """
+    samples = np.asarray(samples, dtype=np.float64)
+    lattice = samples.shape[-ndim:]
+    flat = samples.reshape(len(samples), -1)
+    synthesis = SensingOperator(np.ones(lattice, bool), ndim).matrix(lattice)  # H^T, (M, M)
+    out = np.zeros_like(flat)
+    model = LassoLars(alpha=alpha, fit_intercept=False, max_iter=max_iter)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        for i, row in enumerate(flat):
+            observed = np.isfinite(row)
+            if not observed.any():
+                continue
+            model.fit(synthesis[observed], row[observed])
+            out[i] = synthesis @ model.coef_
+    return out.reshape(samples.shape).astype(np.float32)

@@ -1,0 +1,170 @@
+"""Create, write and open the Zarr v3 store of one acquisition.
+
+Arrays are written with plain :mod:`zarr` (``dimension_names`` set), so the whole group opens as
+one :class:`xarray.Dataset` with ``xarray.open_zarr(path, consolidated=False)``. Each stage records
+its provenance under the group attribute ``stages`` and marks itself complete last, so an
+interrupted stage never looks finished.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import shutil
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+import zarr
+
+from ltmstore.errors import LtmError
+
+STAGES_ATTR = "stages"
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+
+
+@contextmanager
+def new_store(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[zarr.Group]:
+    """Create a store at ``path`` atomically: build it beside, then move it into place.
+
+    Refuses an existing path unless ``overwrite``. If the body raises, nothing is left at
+    ``path`` and an existing store there is untouched.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise LtmError(f"store {str(path)!r} already exists; pass --overwrite to replace it")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise LtmError(f"cannot create store {str(path)!r}: folder {str(parent)!r} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise LtmError(f"cannot create store {str(path)!r}: folder {str(parent)!r} is not writable")
+    tmp = parent / f".{path.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        group.attrs[STAGES_ATTR] = {}
+        yield group
+        if path.exists():
+            old = parent / f".{path.name}.old-{os.getpid()}"
+            path.rename(old)
+            tmp.rename(path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(path)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}") from exc
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def open_group(path: str | os.PathLike, *, mode: str = "r") -> zarr.Group:
+    """Open an existing store's group, with a clear error when it is not a store."""
+    path = Path(path)
+    if not (path / "zarr.json").is_file():
+        raise LtmError(f"store {str(path)!r} does not exist or is not a Zarr v3 store")
+    return zarr.open_group(str(path), mode=mode, zarr_format=3)
+
+
+def write_coord(group: zarr.Group, name: str, values: np.ndarray, **attrs) -> None:
+    """Write a 1-D coordinate variable ``name(name)``."""
+    values = np.asarray(values)
+    arr = group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=values.shape
+                             or (1,), dimension_names=(name,), overwrite=True, fill_value=None)
+    arr[...] = values
+    arr.attrs.update(attrs)
+
+
+def create_variable(
+    group: zarr.Group,
+    name: str,
+    dims: Sequence[str],
+    shape: Sequence[int],
+    *,
+    chunks: Sequence[int],
+    dtype=np.float32,
+    shards: Sequence[int] | None = None,
+    fill_value=np.nan,
+    attrs: dict | None = None,
+) -> zarr.Array:
+    """Create an empty named-dimension array (overwriting one of the same name)."""
+    if name in group:
+        del group[name]
+    arr = group.create_array(
+        name,
+        shape=tuple(int(n) for n in shape),
+        chunks=tuple(int(c) for c in chunks),
+        shards=None if shards is None else tuple(int(c) for c in shards),
+        dtype=dtype,
+        fill_value=fill_value,
+        dimension_names=tuple(dims),
+        overwrite=True,
+    )
+    if attrs:
+        arr.attrs.update(attrs)
+    return arr
+
+
+def stages(group: zarr.Group) -> dict:
+    """Provenance of every stage recorded in the store."""
+    return dict(group.attrs.get(STAGES_ATTR, {}))
+
+
+def begin_stage(group: zarr.Group, stage: str) -> None:
+    """Mark ``stage`` as started (and not complete) before writing any of its arrays."""
+    st = stages(group)
+    st[stage] = {"complete": False, "started": _now()}
+    group.attrs[STAGES_ATTR] = st
+
+
+def complete_stage(group: zarr.Group, stage: str, info: dict) -> None:
+    """Record ``info`` for ``stage`` and mark it complete: always the last write of a stage."""
+    from ltmstore import __version__
+
+    st = stages(group)
+    entry = dict(st.get(stage, {}))
+    entry.update(info)
+    entry.update({"complete": True, "finished": _now(), "software": f"ltmstore {__version__}"})
+    st[stage] = entry
+    group.attrs[STAGES_ATTR] = st
+
+
+def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dict:
+    """The record of a completed stage, or a clear error."""
+    entry = stages(group).get(stage)
+    if not entry or not entry.get("complete"):
+        state = "incomplete (interrupted?)" if entry else "missing"
+        raise LtmError(f"store {str(path)!r}: stage {stage!r} is {state}; run it first")
+    return entry
+
+
+def open_store(path: str | os.PathLike, *, chunks: dict | str | None = "auto") -> xr.Dataset:
+    """Open a store as a lazy :class:`xarray.Dataset` (Dask-backed, one chunk per Zarr shard).
+
+    Variables of stages that did not complete are dropped, so partial results are never served.
+    """
+    group = open_group(path)
+    ds = xr.open_zarr(str(path), consolidated=False, chunks={})
+    incomplete = {
+        name
+        for stage, entry in stages(group).items()
+        if not entry.get("complete")
+        for name in STAGE_VARIABLES.get(stage, ())
+    }
+    ds = ds.drop_vars([v for v in incomplete if v in ds.variables])
+    ds.attrs = {k: v for k, v in group.attrs.asdict().items()}
+    return ds
+
+
+# Which variables each stage writes (used to hide the output of interrupted stages).
+STAGE_VARIABLES = {
+    "ingest": ("frames", "frame_chroma", "pose_r", "pose_s", "pose_z", "pose_valid", "chroma"),
+    "resample": ("samples", "count"),
+    "reconstruct": ("ltm",),
+}

@@ -1,0 +1,1 @@
+"""Ground-truth scenes, handheld trajectories and simulated acquisitions."""

@@ -1,0 +1,65 @@
+"""Write an acquisition folder (ARCHITECTURE.md section 3.1) from frames and poses."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ltmstore.dims import Plane
+from ltmstore.errors import LtmError
+
+FORMAT = "ltm-acquisition/1"
+FPS = 30.0
+
+
+def video_name(lossy: bool) -> str:
+    """``video.mkv`` (FFV1, lossless) or ``video.mp4`` (mp4v, lossy)."""
+    return "video.mp4" if lossy else "video.mkv"
+
+
+def write_video(path: Path, frames_rgb8: Iterable[np.ndarray], *, fps: float = FPS) -> int:
+    """Write 8-bit RGB frames ``(H, W, 3)`` to ``path``; FFV1 for ``.mkv``, mp4v for ``.mp4``.
+
+    Returns the number of frames written.
+    """
+    fourcc = cv2.VideoWriter_fourcc(*("mp4v" if path.suffix == ".mp4" else "FFV1"))
+    writer = None
+    n = 0
+    try:
+        for frame in frames_rgb8:
+            frame = np.asarray(frame)
+            if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+                raise ValueError(f"frames must be (H, W, 3) uint8, got {frame.shape} {frame.dtype}")
+            if writer is None:
+                h, w = frame.shape[:2]
+                writer = cv2.VideoWriter(str(path), fourcc, fps, (w, h), True)
+                if not writer.isOpened():
+                    raise LtmError(f"OpenCV cannot open a video writer for {str(path)!r}")
+            writer.write(np.ascontiguousarray(frame[..., ::-1]))
+            n += 1
+    finally:
+        if writer is not None:
+            writer.release()
+    return n
+
+
+def write_poses(path: Path, t: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarray,
+                p: np.ndarray | None = None, q: np.ndarray | None = None) -> None:
+    """Write ``poses.csv`` with header ``t,r,s,z[,p,q]``."""
+    cols = [t, r, s, z] + ([p, q] if p is not None and q is not None else [])
+    header = "t,r,s,z" + (",p,q" if len(cols) == 6 else "")
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="",
+               fmt="%.9g")
+
+
+def write_acquisition_json(folder: Path, *, video: str, plane: Plane, transfer: str = "srgb",
+                           extra: dict | None = None) -> None:
+    """Write ``acquisition.json`` for a folder holding ``video`` and ``poses.csv``."""
+    meta = {"format": FORMAT, "video": video, "poses": "poses.csv", "plane": plane.to_json(),
+            "transfer": transfer}
+    meta.update(extra or {})
+    (folder / "acquisition.json").write_text(json.dumps(meta, indent=2) + "\n")

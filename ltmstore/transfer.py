@@ -1,0 +1,37 @@
+"""Transfer functions between stored code values and linear light."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ltmstore.errors import LtmError
+
+TRANSFERS = ("srgb", "linear")
+
+
+def srgb_to_linear(v: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB decoding of values in ``[0, 1]``."""
+    v = np.asarray(v, dtype=np.float32)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(v: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB encoding of linear values (clipped to ``[0, 1]``)."""
+    v = np.clip(np.asarray(v, dtype=np.float32), 0, 1)
+    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
+def decode(code: np.ndarray, transfer: str) -> np.ndarray:
+    """8-bit code values to linear light in ``[0, 1]``."""
+    if transfer not in TRANSFERS:
+        raise LtmError(f"transfer {transfer!r} must be one of {', '.join(TRANSFERS)}")
+    v = np.asarray(code, dtype=np.float32) / 255.0
+    return srgb_to_linear(v) if transfer == "srgb" else v
+
+
+def encode(linear: np.ndarray, transfer: str) -> np.ndarray:
+    """Linear light to 8-bit code values (rounded, clipped)."""
+    if transfer not in TRANSFERS:
+        raise LtmError(f"transfer {transfer!r} must be one of {', '.join(TRANSFERS)}")
+    v = linear_to_srgb(linear) if transfer == "srgb" else np.clip(linear, 0, 1)
+    return np.round(np.asarray(v) * 255).astype(np.uint8)

@@ -1,0 +1,59 @@
+import dask.array as da
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ltmstore.dims import Lattice, Plane
+from ltmstore.resample import bin_frames, bin_positions, path_length
+
+PLANE = Plane(r=(0.0, 4.0), s=(0.0, 2.0), height=1.0)
+
+
+def test_binning_is_the_mean_of_each_cell_on_hand_made_samples():
+    lattice = Lattice.from_plane(PLANE, (4, 2))  # unit cells
+    r = np.array([0.5, 0.6, 3.9, 1.0, 2.5, 9.0])
+    s = np.array([0.5, 0.1, 1.9, 1.5, 0.5, 0.5])
+    valid = np.array([True, True, True, True, False, True])
+    frames = np.arange(6 * 2 * 3, dtype=np.float32).reshape(6, 2, 3)
+    binning = bin_positions(lattice, (r, s), valid)
+    out = bin_frames(da.from_array(frames, chunks=(2, 2, 3)), binning).compute()
+    expected = np.full((2, 3, 4, 2), np.nan, np.float32)
+    expected[..., 0, 0] = (frames[0] + frames[1]) / 2
+    expected[..., 3, 1] = frames[2]
+    expected[..., 1, 1] = frames[3]  # r = 1.0 starts cell 1
+    np.testing.assert_allclose(out, expected)
+    assert binning.k == 3 and binning.m == 8 and binning.ratio == 3 / 8
+    assert binning.count[0, 0] == 2 and binning.count.sum() == 4
+
+
+def test_upper_plane_edge_belongs_to_last_cell():
+    lattice = Lattice.from_plane(PLANE, (4, 2))
+    assert lattice.cell_index(np.array([4.0]), np.array([2.0]))[0] == 7
+    assert lattice.cell_index(np.array([-1e-9]), np.array([1.0]))[0] == -1
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 9), st.integers(1, 9), st.integers(1, 40), st.integers(1, 7),
+       st.integers(0, 2**31 - 1))
+def test_binning_matches_a_loop_for_any_chunking(nr, ns, nt, chunk, seed):
+    rng = np.random.default_rng(seed)
+    lattice = Lattice.from_plane(PLANE, (nr, ns))
+    r, s = rng.uniform(-0.5, 4.5, nt), rng.uniform(-0.5, 2.5, nt)
+    frames = rng.random((nt, 2, 2)).astype(np.float32)
+    binning = bin_positions(lattice, (r, s))
+    out = bin_frames(da.from_array(frames, chunks=(chunk, 2, 2)), binning).compute()
+    sums, counts = np.zeros((2, 2, nr * ns)), np.zeros(nr * ns)
+    for f, c in zip(frames, binning.cell, strict=True):
+        if c >= 0:
+            sums[..., c] += f
+            counts[c] += 1
+    with np.errstate(invalid="ignore"):
+        expected = (sums / counts).reshape(2, 2, nr, ns)
+    np.testing.assert_allclose(out, expected, rtol=1e-5)
+    assert binning.count.sum() == counts.sum()
+
+
+def test_path_length_skips_invalid_steps():
+    r, s = np.array([0.0, 1.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0, 3.0])
+    assert path_length(r, s) == 4.0
+    assert path_length(r, s, valid=np.array([True, True, False, True])) == 1.0
