@@ -51,14 +51,18 @@ def rgb_to_ycbcr(rgb: np.ndarray) -> np.ndarray:
     return np.stack([y, cb, cr], axis=-1)
 
 
-def ycbcr_to_rgb(ycc: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`rgb_to_ycbcr`."""
-    ycc = np.asarray(ycc)
-    y, cb, cr = ycc[..., 0], ycc[..., 1], ycc[..., 2]
+def rgb_from_ycbcr(y, cb, cr):
+    """``(R, G, B)`` from ``Y, Cb, Cr`` given separately (NumPy or xarray operands)."""
     r = y + 1.402 * cr
     b = y + 1.772 * cb
     g = (y - LUMA[0] * r - LUMA[2] * b) / LUMA[1]
-    return np.stack([r, g, b], axis=-1)
+    return r, g, b
+
+
+def ycbcr_to_rgb(ycc: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rgb_to_ycbcr`."""
+    ycc = np.asarray(ycc)
+    return np.stack(rgb_from_ycbcr(ycc[..., 0], ycc[..., 1], ycc[..., 2]), axis=-1)
 
 
 @dataclass(frozen=True)

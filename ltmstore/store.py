@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 import zarr
+from zarr.abc.store import Store
+from zarr.storage import WrapperStore
 
 from ltmstore.errors import LtmError
 
@@ -64,8 +66,26 @@ def new_store(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[z
         raise
 
 
-def open_group(path: str | os.PathLike, *, mode: str = "r") -> zarr.Group:
+class CountingStore(WrapperStore):
+    """Wraps a Zarr store and counts the reads and bytes it serves (to measure queries)."""
+
+    def __init__(self, store: Store) -> None:
+        super().__init__(store)
+        self.reads = 0
+        self.bytes_read = 0
+
+    async def get(self, key, prototype, byte_range=None):
+        buf = await self._store.get(key, prototype, byte_range)
+        if buf is not None and not key.endswith("zarr.json"):
+            self.reads += 1
+            self.bytes_read += len(buf)
+        return buf
+
+
+def open_group(path: str | os.PathLike | Store, *, mode: str = "r") -> zarr.Group:
     """Open an existing store's group, with a clear error when it is not a store."""
+    if isinstance(path, Store):
+        return zarr.open_group(store=path, mode=mode, zarr_format=3)
     path = Path(path)
     if not (path / "zarr.json").is_file():
         raise LtmError(f"store {str(path)!r} does not exist or is not a Zarr v3 store")
@@ -75,8 +95,9 @@ def open_group(path: str | os.PathLike, *, mode: str = "r") -> zarr.Group:
 def write_coord(group: zarr.Group, name: str, values: np.ndarray, **attrs) -> None:
     """Write a 1-D coordinate variable ``name(name)``."""
     values = np.asarray(values)
-    arr = group.create_array(name, shape=values.shape, dtype=values.dtype, chunks=values.shape
-                             or (1,), dimension_names=(name,), overwrite=True, fill_value=None)
+    dtype = str if values.dtype.kind in "UO" else values.dtype  # variable-length UTF-8
+    arr = group.create_array(name, shape=values.shape, dtype=dtype, chunks=values.shape or (1,),
+                             dimension_names=(name,), overwrite=True)
     arr[...] = values
     arr.attrs.update(attrs)
 
@@ -144,13 +165,15 @@ def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dic
     return entry
 
 
-def open_store(path: str | os.PathLike, *, chunks: dict | str | None = "auto") -> xr.Dataset:
-    """Open a store as a lazy :class:`xarray.Dataset` (Dask-backed, one chunk per Zarr shard).
+def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
+    """Open a store as a lazy :class:`xarray.Dataset`, one Dask chunk per inner Zarr chunk.
 
-    Variables of stages that did not complete are dropped, so partial results are never served.
+    ``path`` may also be a Zarr store object (e.g. a :class:`CountingStore`). Variables of
+    stages that did not complete are dropped, so partial results are never served.
     """
     group = open_group(path)
-    ds = xr.open_zarr(str(path), consolidated=False, chunks={})
+    ds = xr.open_zarr(path if isinstance(path, Store) else str(path), consolidated=False,
+                      chunks={})
     incomplete = {
         name
         for stage, entry in stages(group).items()

@@ -1,0 +1,40 @@
+"""The Dask cluster a run uses: a throwaway local one, or an existing scheduler."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from distributed import Client, LocalCluster
+
+from ltmstore.errors import LtmError
+
+# One BLAS/FFT thread per worker process: the parallelism is across pixel tiles.
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
+                timeout: float = 30) -> Iterator[Client]:
+    """A :class:`distributed.Client` for the run, closed afterwards.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``). Without it a
+        :class:`~distributed.LocalCluster` of single-threaded worker processes is started
+        (one per core, at most 4) and closed at the end.
+    """
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout=timeout)
+        except (OSError, TimeoutError) as exc:
+            raise LtmError(f"cannot reach Dask scheduler {scheduler!r}: {exc}") from exc
+        with client:
+            yield client
+        return
+    n = n_workers or max(1, min(4, os.cpu_count() or 1))
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                      dashboard_address=None, env=WORKER_ENV) as cluster, Client(cluster) as client:
+        yield client

@@ -1,0 +1,90 @@
+"""Relighting on a hand-made store whose LTM is linear in (r, s): bilinear queries are exact."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+from zarr.storage import LocalStore
+
+from ltmstore import relight
+from ltmstore import store as st
+from ltmstore.dims import Lattice, Plane, rgb_to_ycbcr, ycbcr_to_rgb
+from ltmstore.errors import LtmError
+from ltmstore.reconstruct import plan_tiles
+from ltmstore.relight import LightClampWarning
+
+PLANE = Plane(r=(-1.0, 1.0), s=(-1.0, 1.0), height=1.0)
+LATTICE = Lattice.from_plane(PLANE, (16, 16))
+SIZE = (40, 48)
+COLOUR = np.array([0.8, 0.5, 0.2])
+
+
+def linear_ltm(r, s):
+    """Value of pixel (y, x) under a light at (r, s): exact under bilinear interpolation."""
+    y, x = np.mgrid[: SIZE[0], : SIZE[1]]
+    return 1 + 0.01 * y[..., None] + 0.02 * x[..., None] + 0.5 * r + 0.25 * s
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    path = tmp_path_factory.mktemp("relight") / "store.zarr"
+    plan = plan_tiles(SIZE, LATTICE.shape, tile=32, chunk_bytes=16 * 1024)
+    rr, ss = np.meshgrid(*LATTICE.coords().values(), indexing="ij")
+    ltm = linear_ltm(rr.ravel(), ss.ravel()).reshape(*SIZE, *LATTICE.shape).astype(np.float32)
+    ycc = rgb_to_ycbcr(COLOUR)
+    with st.new_store(path) as group:
+        group.attrs["acquisition"] = {"plane": PLANE.to_json(), "transfer": "srgb"}
+        for name, values in {"y": np.arange(SIZE[0]), "x": np.arange(SIZE[1]),
+                             "channel": np.array(["cb", "cr"]), **LATTICE.coords()}.items():
+            st.write_coord(group, name, values)
+        st.create_variable(group, "ltm", ("y", "x", "r", "s"), ltm.shape, chunks=plan.chunks,
+                           shards=plan.shards)[...] = ltm
+        chroma = np.broadcast_to(ycc[1:] / ycc[0], (*SIZE, 2)).astype(np.float32)
+        st.create_variable(group, "chroma", ("y", "x", "channel"), chroma.shape,
+                           chunks=chroma.shape)[...] = chroma
+        st.complete_stage(group, "reconstruct", {})
+    return path
+
+
+def test_point_lights_interpolate_bilinearly(store):
+    lights = [(LATTICE.centres(0)[3], LATTICE.centres(1)[5]), (0.013, -0.377), (0.9, 0.9)]
+    image = relight(store, lights, color=False)
+    assert image.dims == ("light", "y", "x") and image.chunks is not None  # lazy
+    for k, (r, s) in enumerate(lights):
+        np.testing.assert_allclose(image.isel(light=k).values, linear_ltm(r, s)[..., 0],
+                                   rtol=1e-5)
+
+
+def test_colour_comes_back_from_chroma(store):
+    rgb = relight(store, [(0.1, 0.2)]).isel(light=0).values
+    luminance = linear_ltm(0.1, 0.2)[..., 0]
+    expected = luminance[..., None] * ycbcr_to_rgb(rgb_to_ycbcr(COLOUR)) / rgb_to_ycbcr(COLOUR)[0]
+    np.testing.assert_allclose(rgb, expected, rtol=1e-4)
+
+
+def test_light_outside_the_plane_is_clamped_with_a_warning(store):
+    with pytest.warns(LightClampWarning, match=r"light \(5, 0\) lies outside"):
+        image = relight(store, [(5.0, 0.0)], color=False).isel(light=0).values
+    edge = LATTICE.centres(0)[-1]
+    np.testing.assert_allclose(image, linear_ltm(edge, 0.0)[..., 0], rtol=1e-5)
+
+
+def test_weight_patterns_are_area_lights(store):
+    ds = st.open_store(store)
+    weights = xr.DataArray(np.random.default_rng(0).random(LATTICE.shape), dims=("r", "s"))
+    image = relight(ds, weights, color=False).isel(light=0).values
+    expected = np.einsum("yxrs,rs->yx", ds["ltm"].values, weights.values)
+    np.testing.assert_allclose(image, expected, rtol=1e-5)
+
+
+def test_a_point_light_reads_only_the_chunks_it_needs(store):
+    counting = st.CountingStore(LocalStore(str(store), read_only=True))
+    relight(st.open_store(counting), [(0.013, -0.377)], color=False).compute()
+    total = LATTICE.size * np.prod(SIZE) * 4
+    assert 0 < counting.bytes_read < total / 10, (counting.bytes_read, total)
+
+
+def test_bad_lights_are_clear_errors(store):
+    with pytest.raises(LtmError, match="must be finite"):
+        relight(store, [(np.nan, 0.0)])
