@@ -30,8 +30,7 @@ COLOR_CHANNELS = ("R", "G", "B")
 
 # Store variables (ARCHITECTURE.md section 3.2).
 FRAMES = "frames"  # (t, y, x) linear luminance
-FRAME_CHROMA = "frame_chroma"  # (t, y, x, channel) linear Cb, Cr; kept so chroma can be refitted
-POSES = ("pose_r", "pose_s", "pose_z", "pose_valid")  # (t,) light position per frame
+POSES = ("pose_r", "pose_s", "pose_z", "pose_valid")  # (t,) light per frame; + pose_p, pose_q in 6D
 SAMPLES = "samples"  # (y, x, r, s[, p, q]) binned means, NaN where unobserved
 COUNT = "count"  # (r, s[, p, q]) number of frames per cell
 LTM = "ltm"  # (y, x, r, s[, p, q]) float32 linear luminance
@@ -77,7 +76,8 @@ class Plane:
     def __post_init__(self) -> None:
         for name, (lo, hi) in (("r", self.r), ("s", self.s)):
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-                raise LtmError(f"plane {name} range {[lo, hi]} must be two finite numbers, min < max")
+                raise LtmError(
+                    f"plane {name} range {[lo, hi]} must be two finite numbers, min < max")
         if not (np.isfinite(self.height) and self.height > 0):
             raise LtmError(f"plane height {self.height!r} must be a positive number")
 

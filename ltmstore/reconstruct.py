@@ -18,6 +18,7 @@ from distributed import Client, as_completed
 from tqdm.auto import tqdm
 
 from ltmstore import store as st
+from ltmstore.cluster import dask_client
 from ltmstore.dims import COUNT, LTM, SAMPLES, Lattice, Plane
 from ltmstore.errors import LtmError
 from ltmstore.resample import Binning, bin_frames, bin_positions, path_length
@@ -48,7 +49,7 @@ class TilePlan:
         return int(np.prod([-(-n // t) for n, t in zip(self.image, self.tile, strict=True)]))
 
 
-def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 64,
+def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 32,
                chunk_bytes: int = 256 * 1024) -> TilePlan:
     """Square pixel tiles of side ``tile`` and lattice chunks of about ``chunk_bytes``.
 
@@ -107,24 +108,31 @@ def _write_samples(group: zarr.Group, frames: da.Array, binning: Binning,
     return samples
 
 
-def reconstruct(path, *, client: Client, lattice: tuple[int, int] | None = None,
-                delta_rs: float | None = None, method: str = DEFAULT_METHOD,
-                params: dict | None = None, tile: int = 64, overwrite: bool = False,
-                progress: bool = True) -> dict:
+def reconstruct(path, *, client: Client | None = None, scheduler: str | None = None,
+                lattice: tuple[int, int] | None = None, delta_rs: float | None = None,
+                method: str = DEFAULT_METHOD, params: dict | None = None, tile: int = 32,
+                overwrite: bool = False, progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store, in place.
 
     Parameters
     ----------
     path : path-like
         The store (after ``ltm ingest``).
-    client : distributed.Client
-        The Dask cluster that runs the tiles.
+    client : distributed.Client, optional
+        The Dask cluster that runs the tiles; without it one is started for the run
+        (:func:`ltmstore.cluster.dask_client` with ``scheduler``) once the inputs are checked.
+    scheduler : str, optional
+        Address of an existing Dask scheduler (used when no ``client`` is given).
     lattice, delta_rs : optional
         ``(R, S)`` cells, or the cell size; neither: :func:`choose_lattice`.
     method : str
         A name from :data:`ltmstore.solve.METHODS`.
     params : dict, optional
         Keyword arguments of the method.
+    tile : int
+        Pixel tile side: the unit of work and the ``ltm`` shard.
+    overwrite : bool
+        Recompute an existing ``ltm``.
 
     Returns
     -------
@@ -134,47 +142,67 @@ def reconstruct(path, *, client: Client, lattice: tuple[int, int] | None = None,
     if lattice is not None and delta_rs is not None:
         raise LtmError("give either --lattice or --delta-rs, not both")
     get_method(method)
-    params = dict(params or {})
     group = st.open_group(path, mode="r+")
-    acq = st.require_stage(group, "ingest", path)
+    st.require_stage(group, "ingest", path)
     if st.stages(group).get("reconstruct", {}).get("complete") and not overwrite:
         raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute it")
-    plane = Plane.from_json(group.attrs["acquisition"]["plane"])
-    r, s = group["pose_r"][:], group["pose_s"][:]
-    valid = group["pose_valid"][:]
+    run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
+               tile=tile, progress=progress)
+    if client is not None:
+        return _reconstruct(group, client, **run)
+    with dask_client(scheduler) as own:
+        return _reconstruct(group, own, **run)
 
+
+def _pick_lattice(plane: Plane, r, s, valid, lattice, delta_rs) -> tuple[Lattice, str]:
+    if lattice is not None:
+        return Lattice.from_plane(plane, lattice), "user"
+    if delta_rs is not None:
+        return Lattice.from_delta(plane, delta_rs), "user"
+    return choose_lattice(plane, r, s, valid), "automatic"
+
+
+def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
+                 params: dict, tile: int, progress: bool) -> dict:
+    plane = Plane.from_json(group.attrs["acquisition"]["plane"])
+    r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     timings = {}
     start = time.perf_counter()
-    chosen = "automatic" if lattice is None and delta_rs is None else "user"
-    if lattice is not None:
-        lat = Lattice.from_plane(plane, lattice)
-    elif delta_rs is not None:
-        lat = Lattice.from_delta(plane, delta_rs)
-    else:
-        lat = choose_lattice(plane, r, s, valid)
+    lat, chosen = _pick_lattice(plane, r, s, valid, lattice, delta_rs)
     binning = bin_positions(lat, (r, s), valid)
     if binning.k == 0:
         raise LtmError(f"no valid frame falls on the {lat.shape} lattice")
-    frames_arr = group["frames"]
-    frames = da.from_zarr(frames_arr)
+    frames = da.from_zarr(group["frames"])
     plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile)
 
     st.begin_stage(group, "resample")
     st.begin_stage(group, "reconstruct")
     samples = _write_samples(group, frames, binning, plan, client)
     density = path_length(r, s, valid=valid) / plane.area
+    sampling = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k,
+                "M": binning.m, "sampling_ratio": binning.ratio, "path_density": density}
     st.complete_stage(group, "resample", {
-        "lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k, "M": binning.m,
-        "sampling_ratio": binning.ratio, "path_density": density,
-        "frames_used": int((binning.cell >= 0).sum())})
+        **sampling, "frames_used": int((binning.cell >= 0).sum())})
     timings["resample_s"] = time.perf_counter() - start
 
     start = time.perf_counter()
     out = st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
                              chunks=plan.chunks, shards=plan.shards)
+    tile_seconds = _solve_tiles(samples, out, plan, method, params, client, progress)
+    timings["solve_s"] = time.perf_counter() - start
+    info = {**sampling, "method": method, "params": params, "plan": asdict(plan),
+            "timings": timings,
+            "seconds_per_pixel": sum(tile_seconds) / int(np.prod(plan.image))}
+    st.complete_stage(group, "reconstruct", info)
+    return info
+
+
+def _solve_tiles(samples: zarr.Array, out: zarr.Array, plan: TilePlan, method: str,
+                 params: dict, client: Client, progress: bool) -> list[float]:
+    """Run one Dask task per pixel tile; return each tile's solve time."""
     tiles = da.from_zarr(samples, chunks=plan.shards)
     seconds = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
-                               ndim=len(lat.shape), drop_axis=list(range(2, tiles.ndim)),
+                               ndim=len(plan.lattice), drop_axis=list(range(2, tiles.ndim)),
                                chunks=(1, 1), dtype=float)
     futures = client.compute(list(seconds.to_delayed().ravel()))
     tile_seconds = []
@@ -182,14 +210,4 @@ def reconstruct(path, *, client: Client, lattice: tuple[int, int] | None = None,
         for fut in as_completed(futures):
             tile_seconds.append(float(fut.result().item()))
             bar.update()
-    timings["solve_s"] = time.perf_counter() - start
-    n_pixels = int(np.prod(plan.image))
-    info = {
-        "method": method, "params": params, "plan": asdict(plan), "lattice": lat.to_json(),
-        "K": binning.k, "M": binning.m, "sampling_ratio": binning.ratio,
-        "path_density": density, "timings": timings,
-        "seconds_per_pixel": sum(tile_seconds) / n_pixels,
-        "acquisition_sha256": acq.get("sha256"),
-    }
-    st.complete_stage(group, "reconstruct", info)
-    return info
+    return tile_seconds

@@ -187,7 +187,8 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
 
 # Which variables each stage writes (used to hide the output of interrupted stages).
 STAGE_VARIABLES = {
-    "ingest": ("frames", "frame_chroma", "pose_r", "pose_s", "pose_z", "pose_valid", "chroma"),
+    "ingest": ("frames", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q", "pose_valid",
+               "chroma"),
     "resample": ("samples", "count"),
     "reconstruct": ("ltm",),
 }

@@ -10,8 +10,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.linear_model import LassoLars
 
 from ltmstore.operators import SensingOperator
 
@@ -24,6 +22,9 @@ def solve(samples: np.ndarray, *, ndim: int = 2, alpha: float = 1e-7,
     -------
     ndarray of float32, same shape as ``samples``.
     """
+    from sklearn.exceptions import ConvergenceWarning  # imported here: 1 s, rarely needed
+    from sklearn.linear_model import LassoLars
+
     samples = np.asarray(samples, dtype=np.float64)
     lattice = samples.shape[-ndim:]
     flat = samples.reshape(len(samples), -1)

@@ -1,0 +1,302 @@
+"""Read and validate an acquisition folder (ARCHITECTURE.md section 3.1).
+
+Everything a user can get wrong in ``acquisition.json`` or ``poses.csv`` is reported as one
+:class:`~ltmstore.errors.LtmError` whose one-line message names the file, the bad value and what
+was expected. Input files are only ever read.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ltmstore.dims import Plane
+from ltmstore.errors import LtmError
+
+FORMAT = "ltm-acquisition/1"
+TRANSFERS = ("srgb", "linear")
+REQUIRED_KEYS = ("format", "video", "poses", "plane", "transfer")
+POSE_COLUMNS = ("t", "r", "s", "z")
+VIEW_COLUMNS = ("p", "q")
+MIN_POSES = 2
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """A validated acquisition folder.
+
+    Attributes
+    ----------
+    folder : Path
+        The acquisition folder (resolved).
+    video, poses : Path
+        The video and pose files, inside ``folder``.
+    plane : Plane
+        The illumination plane rectangle and height.
+    transfer : str
+        ``"srgb"`` or ``"linear"``: how the video's 8-bit values encode light.
+    time_offset : float
+        Seconds added to the pose times to put them on the video's clock.
+    view_plane : dict or None
+        ``{"p": [min, max], "q": [min, max]}`` for 6D acquisitions.
+    raw : dict
+        The parsed ``acquisition.json``.
+    """
+
+    folder: Path
+    video: Path
+    poses: Path
+    plane: Plane
+    transfer: str
+    time_offset: float = 0.0
+    view_plane: dict | None = None
+    raw: dict = field(default_factory=dict, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class Poses:
+    """Light (and camera) positions over time, as read from ``poses.csv``.
+
+    Attributes
+    ----------
+    t : ndarray
+        Times in seconds, strictly increasing.
+    r, s, z : ndarray
+        Light position on the plane and its height.
+    p, q : ndarray or None
+        Camera position on the view plane (6D acquisitions only).
+    """
+
+    t: np.ndarray
+    r: np.ndarray
+    s: np.ndarray
+    z: np.ndarray
+    p: np.ndarray | None = None
+    q: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def resolve_inside(folder: Path, name: object, what: str) -> Path:
+    """Resolve ``name`` relative to ``folder``, refusing paths that leave it.
+
+    Parameters
+    ----------
+    folder : Path
+        The folder the path must stay in.
+    name : object
+        The path as written by the user (must be a non-empty relative path string).
+    what : str
+        Where the name comes from, for the error message (e.g. ``"acquisition.json 'video'"``).
+
+    Returns
+    -------
+    Path
+        The resolved path (symlinks followed); it may not exist.
+
+    Raises
+    ------
+    LtmError
+        If ``name`` is not a string, is absolute, or resolves outside ``folder``.
+    """
+    if not isinstance(name, str) or not name.strip():
+        raise LtmError(f"{what} {name!r} must be a file name relative to {str(folder)!r}")
+    if Path(name).is_absolute():
+        raise LtmError(f"{what} {name!r} is an absolute path; expected a path relative to "
+                       f"{str(folder)!r}")
+    root = folder.resolve()
+    path = (root / name).resolve()
+    if not path.is_relative_to(root):
+        raise LtmError(f"{what} {name!r} leaves the folder {str(folder)!r} (resolves to "
+                       f"{str(path)!r}); expected a path inside it")
+    return path
+
+
+def sha256_file(path: Path, *, block: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file, read in blocks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while chunk := fh.read(block):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def load_acquisition(folder: str | os.PathLike) -> Acquisition:
+    """Read and validate an acquisition folder.
+
+    Parameters
+    ----------
+    folder : str or PathLike
+        A folder holding ``acquisition.json``, the video and the poses file.
+
+    Returns
+    -------
+    Acquisition
+        The validated description (files are not opened beyond ``acquisition.json``).
+
+    Raises
+    ------
+    LtmError
+        With a one-line message for any missing or malformed part.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise LtmError(f"acquisition folder {str(folder)!r} does not exist or is not a folder")
+    meta_path = folder / "acquisition.json"
+    meta = _read_json(meta_path)
+    where = str(meta_path)
+    missing = [k for k in REQUIRED_KEYS if k not in meta]
+    if missing:
+        raise LtmError(f"{where}: missing key(s) {missing}; expected keys {list(REQUIRED_KEYS)}")
+    if meta["format"] != FORMAT:
+        raise LtmError(f"{where}: format {meta['format']!r} is not supported; "
+                       f"expected {FORMAT!r}")
+    if meta["transfer"] not in TRANSFERS:
+        raise LtmError(f"{where}: transfer {meta['transfer']!r} is unknown; "
+                       f"expected one of {list(TRANSFERS)}")
+    return Acquisition(
+        folder=folder.resolve(),
+        video=_existing_file(folder, meta["video"], f"{where}: video"),
+        poses=_existing_file(folder, meta["poses"], f"{where}: poses"),
+        plane=_plane(meta["plane"], where),
+        transfer=meta["transfer"],
+        time_offset=_time_offset(meta.get("time_offset", 0.0), where),
+        view_plane=_view_plane(meta.get("view_plane"), where),
+        raw=meta,
+    )
+
+
+def _read_json(path: Path) -> dict:
+    if not path.is_file():
+        raise LtmError(f"acquisition folder {str(path.parent)!r} has no acquisition.json")
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise LtmError(f"{str(path)} is not valid JSON: {exc.msg} at line {exc.lineno}, "
+                       f"column {exc.colno}") from exc
+    except UnicodeDecodeError as exc:
+        raise LtmError(f"{str(path)} is not UTF-8 text: {exc.reason}") from exc
+    if not isinstance(meta, dict):
+        raise LtmError(f"{str(path)} holds a {type(meta).__name__}; expected a JSON object")
+    return meta
+
+
+def _existing_file(folder: Path, name: object, what: str) -> Path:
+    path = resolve_inside(folder, name, what)
+    if not path.is_file():
+        raise LtmError(f"{what} file {name!r} does not exist in {str(folder)!r}")
+    return path
+
+
+def _plane(value: object, where: str) -> Plane:
+    if not isinstance(value, dict):
+        raise LtmError(f"{where}: plane {value!r} must look like "
+                       "{'r': [min, max], 's': [min, max], 'height': h}")
+    try:
+        return Plane.from_json(value)
+    except LtmError as exc:
+        raise LtmError(f"{where}: {exc}") from exc
+
+
+def _time_offset(value: object, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise LtmError(f"{where}: time_offset {value!r} must be a finite number of seconds")
+    return float(value)
+
+
+def _view_plane(value: object, where: str) -> dict | None:
+    if value is None:
+        return None
+    try:
+        ranges = {k: [float(value[k][0]), float(value[k][1])] for k in VIEW_COLUMNS}
+    except (KeyError, TypeError, IndexError, ValueError):
+        ranges = None
+    if ranges is None or not all(
+        math.isfinite(lo) and math.isfinite(hi) and lo < hi for lo, hi in ranges.values()
+    ):
+        raise LtmError(f"{where}: view_plane {value!r} must look like "
+                       "{'p': [min, max], 'q': [min, max]} with finite min < max")
+    return ranges
+
+
+def load_poses(path: str | os.PathLike, *, min_samples: int = MIN_POSES) -> Poses:
+    """Read and validate ``poses.csv`` (header ``t,r,s,z[,p,q]``).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The poses file.
+    min_samples : int, default 2
+        The fewest rows accepted.
+
+    Returns
+    -------
+    Poses
+        Arrays of float64, one entry per row.
+
+    Raises
+    ------
+    LtmError
+        If the header is wrong, a value is not a finite number (naming its line), the times are
+        not strictly increasing (naming the first offending line) or there are too few rows.
+    """
+    path = Path(path)
+    header, lines, rows = _read_csv(path)
+    cols = np.asarray(rows, dtype=np.float64).reshape(-1, len(header))
+    if len(cols) < min_samples:
+        raise LtmError(f"{str(path)}: {len(cols)} pose sample(s); expected at least {min_samples}")
+    steps = np.diff(cols[:, 0])
+    if (steps <= 0).any():
+        i = int(np.argmax(steps <= 0)) + 1
+        now, before = float(cols[i, 0]), float(cols[i - 1, 0])
+        raise LtmError(f"{str(path)} line {lines[i]}: time {now!r} does not come after "
+                       f"{before!r}; expected strictly increasing times")
+    values = dict(zip(header, cols.T, strict=True))
+    return Poses(**values)
+
+
+def _read_csv(path: Path) -> tuple[list[str], list[int], list[list[float]]]:
+    """Header, file line numbers and finite values of every non-blank row."""
+    expected = [",".join(POSE_COLUMNS), ",".join(POSE_COLUMNS + VIEW_COLUMNS)]
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            header = [h.strip() for h in next(reader, [])]
+            if ",".join(header) not in expected:
+                raise LtmError(f"{str(path)}: header {','.join(header)!r} must be "
+                               f"{expected[0]!r} or {expected[1]!r}")
+            lines, rows = [], []
+            for row in reader:
+                if any(v.strip() for v in row):
+                    lines.append(reader.line_num)
+                    rows.append(_parse_row(path, reader.line_num, header, row))
+    except OSError as exc:
+        raise LtmError(f"poses file {str(path)!r} cannot be read: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise LtmError(f"poses file {str(path)!r} is not UTF-8 text: {exc.reason}") from exc
+    return header, lines, rows
+
+
+def _parse_row(path: Path, line: int, header: list[str], row: list[str]) -> list[float]:
+    if len(row) != len(header):
+        raise LtmError(f"{str(path)} line {line}: {len(row)} value(s); expected {len(header)} "
+                       f"({','.join(header)})")
+    values = []
+    for name, text in zip(header, row, strict=True):
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value):
+            raise LtmError(f"{str(path)} line {line}: {name} = {text.strip()!r} is not a finite "
+                           "number")
+        values.append(value)
+    return values

@@ -1,0 +1,220 @@
+"""The ``ltm`` command: parse, call the library, print. User mistakes never show a traceback."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import warnings
+from pathlib import Path
+
+from ltmstore.errors import LtmError
+
+EPILOG = "Docs: README.md. Stores open with xarray.open_zarr(STORE, consolidated=False)."
+
+
+def _light(text: str) -> tuple[float, float]:
+    try:
+        r, s = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must look like R,S (plane units)") from None
+    return r, s
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    return value
+
+
+def _print_json(obj) -> None:
+    print(json.dumps(obj, indent=2, default=str))
+
+
+def cmd_simulate(a: argparse.Namespace) -> None:
+    from ltmstore.synthetic.simulate import simulate_acquisition
+
+    density = {} if a.path_density is None else {"path_density": a.path_density}
+    summary = simulate_acquisition(a.out, scene=a.scene, seed=a.seed, lossy=a.lossy,
+                                   size=a.size, overwrite=a.overwrite, **density)
+    _print_json(summary)
+
+
+def cmd_ingest(a: argparse.Namespace) -> None:
+    from ltmstore.ingest import ingest
+
+    _print_json(ingest(a.acquisition, a.store, overwrite=a.overwrite))
+
+
+def cmd_ingest_rti(a: argparse.Namespace) -> None:
+    from ltmstore.rti import ingest_rti
+
+    _print_json(ingest_rti(a.lp, a.store, height=a.height, extent=a.extent,
+                           overwrite=a.overwrite))
+
+
+def cmd_reconstruct(a: argparse.Namespace) -> None:
+    from ltmstore.dims import parse_lattice
+    from ltmstore.reconstruct import reconstruct
+
+    lattice = parse_lattice(a.lattice) if a.lattice else None
+    info = reconstruct(a.store, scheduler=a.scheduler, lattice=lattice, delta_rs=a.delta_rs,
+                       method=a.method, tile=a.tile, overwrite=a.overwrite)
+    print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
+          f"path density {info['path_density']:.1f}/unit  method {info['method']}  "
+          f"resample {info['timings']['resample_s']:.1f} s  "
+          f"solve {info['timings']['solve_s']:.1f} s")
+
+
+def cmd_relight(a: argparse.Namespace) -> None:
+    import imageio.v3 as iio
+    import numpy as np
+
+    from ltmstore.preview import encode_images
+    from ltmstore.relight import LightClampWarning, relight
+    from ltmstore.store import open_store
+
+    ds = open_store(a.store)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", LightClampWarning)
+        images = relight(ds, np.array(a.light)).sum("light").values[None]
+    for w in caught:
+        print(f"ltm: warning: {w.message}", file=sys.stderr)
+    transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
+    out = Path(a.output)
+    if out.exists() and not a.overwrite:
+        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    try:
+        iio.imwrite(out, encode_images(images, transfer)[0])
+    except (OSError, ValueError) as exc:
+        raise LtmError(f"cannot write image {str(out)!r}: {exc}") from exc
+    print(f"wrote {out}")
+
+
+def cmd_evaluate(a: argparse.Namespace) -> None:
+    from ltmstore.evaluate import compare_stores
+
+    _print_json(compare_stores(a.store, a.truth))
+
+
+def cmd_info(a: argparse.Namespace) -> None:
+    from ltmstore.store import open_group
+
+    _print_json(open_group(a.store).attrs.asdict())
+
+
+def cmd_demo(a: argparse.Namespace) -> None:
+    from flows.demo import run_demo
+
+    run_demo(a.out, scene=a.scene, size=a.size, seed=a.seed, overwrite=a.overwrite)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``ltm: error: ...``, exit 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from ltmstore.solve import DEFAULT_METHOD, METHODS
+    from ltmstore.synthetic.scenes import SCENES
+
+    parser = _Parser(
+        prog="ltm", description="Relightable photographs from handheld light transport "
+        "acquisition: simulate, ingest, reconstruct (compressive sensing on Dask), relight.",
+        epilog=EPILOG)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=_Parser)
+
+    p = sub.add_parser("demo", help="simulate, ingest, reconstruct, relight and report",
+                       description="Run the whole pipeline on a simulated acquisition as a "
+                       "Prefect flow on a local Dask cluster; print SNR_Y and stage times.")
+    p.add_argument("--out", default="ltm-demo", help="output folder (default: %(default)s)")
+    p.add_argument("--scene", default="relief", choices=SCENES)
+    p.add_argument("--size", type=int, default=96,
+                   help="image side in pixels (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("simulate", help="write a simulated acquisition folder + truth.zarr")
+    p.add_argument("out", help="acquisition folder to create")
+    p.add_argument("--scene", required=True, help=f"one of {', '.join(SCENES)}")
+    p.add_argument("--path-density", type=_number, default=None,
+                   help="trajectory length per unit plane area (1/m)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--lossy", action="store_true", help="mp4v .mp4 instead of lossless FFV1 .mkv")
+    p.add_argument("--size", type=int, default=128, help="image side in pixels")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("ingest", help="acquisition folder -> store (frames, poses)")
+    p.add_argument("acquisition", help="folder with acquisition.json, video, poses.csv")
+    p.add_argument("store", help="Zarr store to create")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_ingest)
+
+    p = sub.add_parser("ingest-rti", help="classic RTI capture (images + .lp) -> store")
+    p.add_argument("lp", help="the .lp light file beside the images")
+    p.add_argument("store", help="Zarr store to create")
+    p.add_argument("--height", type=_number, default=1.0,
+                   help="illumination plane height (default: %(default)s)")
+    p.add_argument("--extent", type=_number, default=None,
+                   help="half-side of the square plane (default: 2 x height)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_ingest_rti)
+
+    p = sub.add_parser("reconstruct", help="resample onto a lattice and solve every pixel",
+                       description="Bin the frames onto the lattice and reconstruct every "
+                       "pixel's LTF by compressive sensing, over pixel tiles on Dask.")
+    p.add_argument("store")
+    grid = p.add_mutually_exclusive_group()
+    grid.add_argument("--lattice", help="RxS cells over the plane, e.g. 32x32")
+    grid.add_argument("--delta-rs", type=_number, help="cell size in plane units")
+    p.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS),
+                   help="solver (default: %(default)s; lars is the slow per-pixel reference)")
+    p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
+    p.add_argument("--tile", type=int, default=32, help="pixel tile side (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true", help="recompute an existing ltm")
+    p.set_defaults(func=cmd_reconstruct)
+
+    p = sub.add_parser("relight", help="render the store under new point lights")
+    p.add_argument("store")
+    p.add_argument("--light", type=_light, action="append", required=True,
+                   help="R,S light position on the plane; repeat to add lights")
+    p.add_argument("-o", "--output", default="relit.png", help="image file (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_relight)
+
+    p = sub.add_parser("evaluate", help="SNR_Y and PSNR against a ground-truth store")
+    p.add_argument("store")
+    p.add_argument("--truth", required=True, help="truth.zarr written by `ltm simulate`")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("info", help="print a store's provenance")
+    p.add_argument("store")
+    p.set_defaults(func=cmd_info)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``ltm`` console script."""
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except LtmError as exc:
+        print(f"ltm: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("ltm: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,56 @@
+"""Preview images of a reconstructed store: relit PNGs and an animated GIF."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from ltmstore.dims import Plane
+from ltmstore.relight import relight
+from ltmstore.store import open_store
+from ltmstore.transfer import encode
+
+
+def circle_path(plane: Plane, n: int, *, radius: float = 0.8) -> np.ndarray:
+    """``n`` light positions on a circle of ``radius`` (fraction of the half-sides)."""
+    angle = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    rc, sc = np.mean(plane.r), np.mean(plane.s)
+    hr, hs = (plane.r[1] - plane.r[0]) / 2, (plane.s[1] - plane.s[0]) / 2
+    return np.column_stack([rc + radius * hr * np.cos(angle), sc + radius * hs * np.sin(angle)])
+
+
+def encode_images(images: np.ndarray, transfer: str) -> np.ndarray:
+    """Linear RGB images ``(n, y, x, 3)`` to 8-bit, scaled so the brightest 0.5% clip."""
+    scale = max(float(np.percentile(images, 99.5)), 1e-12)
+    return encode(images / scale, transfer)
+
+
+def render_previews(store, out_dir, *, n_frames: int = 24, fps: float = 12) -> dict:
+    """Write relit PNGs (centre and four corners) and ``relight.gif`` (a circling light).
+
+    Returns
+    -------
+    dict
+        The paths written.
+    """
+    ds = open_store(store)
+    acq = ds.attrs["acquisition"]
+    plane, transfer = Plane.from_json(acq["plane"]), acq.get("transfer", "srgb")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rc, sc = np.mean(plane.r), np.mean(plane.s)
+    hr, hs = (plane.r[1] - plane.r[0]) / 2, (plane.s[1] - plane.s[0]) / 2
+    stills = {"centre": (rc, sc), "left": (rc - 0.7 * hr, sc), "right": (rc + 0.7 * hr, sc),
+              "top": (rc, sc + 0.7 * hs), "bottom": (rc, sc - 0.7 * hs)}
+    path = circle_path(plane, n_frames)
+    lights = np.vstack([list(stills.values()), path])
+    images = encode_images(relight(ds, lights).values, transfer)
+    written = {}
+    for (name, _), image in zip(stills.items(), images, strict=False):
+        written[name] = out_dir / f"relit_{name}.png"
+        iio.imwrite(written[name], image)
+    written["gif"] = out_dir / "relight.gif"
+    iio.imwrite(written["gif"], images[len(stills):], duration=1000 / fps, loop=0)
+    return {k: str(v) for k, v in written.items()}

@@ -1,0 +1,193 @@
+"""Classic RTI captures (a ``.lp`` light file and its images) to the same store as :func:`ingest`.
+
+A light direction ``(lx, ly, lz)`` maps onto the illumination plane at height ``h`` as
+``r = h lx / lz``, ``s = h ly / lz``. The plane rectangle is ``[-E, E]^2``; lights outside it
+(low lights land far out) stay in the store, flagged invalid (``pose_valid`` False, counted as
+``outside_bounds``), never dropped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm.auto import tqdm
+
+from ltmstore.acquisition import resolve_inside, sha256_file
+from ltmstore.dims import Plane
+from ltmstore.errors import LtmError
+from ltmstore.ingest import DEFAULT_CHUNK_FRAMES, STAGE, FrameSink, Lights, finish_ingest
+from ltmstore.store import begin_stage, new_store
+
+# Default plane half-extent in units of the height: every light above atan(1/2) ~ 26.6 degrees of
+# elevation lands inside the square, every light below atan(1/(2 sqrt 2)) ~ 19.5 degrees outside.
+EXTENT_PER_HEIGHT = 2.0
+
+
+def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
+    """Read an RTI light file.
+
+    The first line holds the number of images ``N``; each of the next ``N`` non-blank lines an
+    image file name (relative to the ``.lp`` file) and a direction ``lx ly lz`` towards the light.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The ``.lp`` file.
+
+    Returns
+    -------
+    names : list of str
+        Image file names as written in the file.
+    directions : ndarray, shape (N, 3)
+        Unit vectors (normalised), ``lz > 0``.
+
+    Raises
+    ------
+    LtmError
+        With a one-line message naming the line for a malformed file, a light at or below the
+        horizon, or an image that is missing or outside the folder.
+    """
+    path = Path(path)
+    lines = _lines(path)
+    count = _count(path, lines[0][1] if lines else "")
+    entries = lines[1:]
+    if len(entries) != count:
+        raise LtmError(f"{str(path)} declares {count} images but lists {len(entries)}")
+    names, directions = [], []
+    for number, text in entries:
+        name, direction = _entry(path, number, text)
+        image = resolve_inside(path.parent, name, f"{str(path)} line {number}: image")
+        if not image.is_file():
+            raise LtmError(f"{str(path)} line {number}: image {name!r} does not exist")
+        names.append(name)
+        directions.append(direction)
+    directions = np.array(directions, dtype=np.float64)
+    return names, directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+
+def _lines(path: Path) -> list[tuple[int, str]]:
+    """Numbered non-blank lines, stripped."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise LtmError(f"light file {str(path)!r} cannot be read: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise LtmError(f"light file {str(path)!r} is not text: {exc.reason}") from exc
+    return [(i, line.strip()) for i, line in enumerate(text.splitlines(), 1) if line.strip()]
+
+
+def _count(path: Path, first: str) -> int:
+    try:
+        count = int(first)
+    except ValueError:
+        count = 0
+    if count < 1:
+        raise LtmError(f"{str(path)} line 1: {first!r} must be the number of images "
+                       "(a positive integer)")
+    return count
+
+
+def _entry(path: Path, number: int, text: str) -> tuple[str, list[float]]:
+    parts = text.rsplit(maxsplit=3)
+    try:
+        direction = [float(v) for v in parts[1:]]
+    except ValueError:
+        direction = []
+    if len(direction) != 3 or not all(math.isfinite(v) for v in direction):
+        raise LtmError(f"{str(path)} line {number}: {text!r} must be 'image lx ly lz' with "
+                       "three finite numbers")
+    if direction[2] <= 0:
+        raise LtmError(f"{str(path)} line {number}: lz = {direction[2]!r} for {parts[0]!r}; "
+                       "expected lz > 0 (a light above the object)")
+    return parts[0], direction
+
+
+def rti_lights(directions: np.ndarray, plane: Plane) -> Lights:
+    """Project unit directions onto the plane and flag the lights outside its rectangle."""
+    h = plane.height
+    r = h * directions[:, 0] / directions[:, 2]
+    s = h * directions[:, 1] / directions[:, 2]
+    return Lights.classify(r, s, np.full_like(r, h), plane=plane, known=np.ones(len(r), bool),
+                           z_tolerance=0.0)
+
+
+def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *, height: float = 1.0,
+               extent: float | None = None, overwrite: bool = False, progress: bool = True,
+               chunk_frames: int = DEFAULT_CHUNK_FRAMES) -> dict:
+    """Ingest a classic RTI capture (sRGB images under known light directions) into a store.
+
+    The store has the layout of :func:`ltmstore.ingest.ingest`: ``t`` is the image index
+    (an ordinal, as float64), ``pose_z`` the plane height, and lights outside the plane rectangle
+    are flagged invalid and counted as ``outside_bounds``.
+
+    Parameters
+    ----------
+    lp_path : str or PathLike
+        The ``.lp`` light file.
+    store : str or PathLike
+        Where to create the Zarr store.
+    height : float, default 1.0
+        Height of the illumination plane above the object (plane units).
+    extent : float, optional
+        Half-width ``E`` of the square plane ``[-E, E]^2``; default ``2 * height`` (a light is
+        inside when ``max(|lx|, |ly|) <= 2 lz``: all lights above 26.6 degrees of elevation).
+    overwrite : bool, default False
+        Replace an existing store instead of refusing.
+    progress : bool, default True
+        Show a progress bar.
+    chunk_frames : int, default 32
+        Images per chunk along ``t``.
+
+    Returns
+    -------
+    dict
+        The ingest record (``n_frames``, ``n_valid``, ``rejected``, ``seconds``, ...) and
+        ``store``.
+    """
+    started = time.perf_counter()
+    lp_path = Path(lp_path)
+    plane = _plane(height, extent)
+    names, directions = read_lp(lp_path)
+    lights = rti_lights(directions, plane)
+    digest = hashlib.sha256()
+    with new_store(store, overwrite=overwrite) as group:
+        begin_stage(group, STAGE)
+        sink = FrameSink(group, transfer="srgb", chunk_frames=chunk_frames)
+        bar = tqdm(zip(names, lights.valid, strict=True), total=len(names),
+                   disable=not progress, unit="image", desc="ingest")
+        for name, valid in bar:
+            data = (lp_path.parent / name).read_bytes()
+            digest.update(data)
+            sink.add(_decode_image(data, name), bool(valid), source=f"image {name!r}")
+        # sha256 "images": of all image files concatenated in .lp order
+        acquisition = {"source": "rti", "lp": lp_path.name, "plane": plane.to_json(),
+                       "height": plane.height, "transfer": "srgb", "images": names,
+                       "frame_size": list(sink.shape),
+                       "sha256": {"lp": sha256_file(lp_path), "images": digest.hexdigest()}}
+        info = {"frame_size": list(sink.shape), "chunk_frames": chunk_frames}
+        record = finish_ingest(group, sink, np.arange(sink.n, dtype=np.float64), lights,
+                               acquisition=acquisition, info=info, started=started)
+    return {**record, "store": str(store)}
+
+
+def _plane(height: float, extent: float | None) -> Plane:
+    if not (np.isfinite(height) and height > 0):
+        raise LtmError(f"height {height!r} must be a positive number (plane units)")
+    e = EXTENT_PER_HEIGHT * height if extent is None else extent
+    if not (np.isfinite(e) and e > 0):
+        raise LtmError(f"extent {extent!r} must be a positive number (plane units)")
+    return Plane(r=(-e, e), s=(-e, e), height=float(height))
+
+
+def _decode_image(data: bytes, name: str) -> np.ndarray:
+    """Decode one image file's bytes as (H, W, 3) uint8 RGB."""
+    bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise LtmError(f"image {name!r} cannot be decoded (expected a JPEG or PNG file)")
+    return bgr[..., ::-1]

@@ -1,0 +1,72 @@
+"""Session fixtures: an isolated Prefect, one simulated acquisition, one local Dask cluster."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+
+import pytest
+
+_PREFECT_HOME = tempfile.mkdtemp(prefix="ltm-prefect-")
+os.environ.setdefault("PREFECT_HOME", _PREFECT_HOME)
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+
+
+@pytest.fixture(scope="session")
+def prefect_harness():
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness(server_startup_timeout=90):
+        yield
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """A real LocalCluster with 2 single-threaded worker processes, shared by the session."""
+    from distributed import LocalCluster
+
+    from ltmstore.cluster import WORKER_ENV
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None, env=WORKER_ENV) as cluster:
+        yield cluster
+
+
+@pytest.fixture
+def client(dask_cluster):
+    from distributed import Client
+
+    with Client(dask_cluster) as c:
+        yield c
+
+
+@pytest.fixture(scope="session")
+def small_acquisition(tmp_path_factory):
+    """A small simulated acquisition (relief scene: hard cast shadows) with truth.zarr
+    on a 16 x 16 lattice; the path density gives K/M near the paper's 0.29."""
+    from ltmstore.synthetic.simulate import simulate_acquisition
+
+    out = tmp_path_factory.mktemp("sim") / "acquisition"
+    simulate_acquisition(out, scene="relief", size=32, seed=1, lattice=(16, 16),
+                         path_density=SMALL_PATH_DENSITY, progress=False)
+    return out
+
+
+SMALL_PATH_DENSITY = 14.0
+
+
+@pytest.fixture(scope="session")
+def small_store(small_acquisition, tmp_path_factory, dask_cluster):
+    """``small_acquisition`` ingested and reconstructed on the session's LocalCluster."""
+    from distributed import Client
+
+    from ltmstore.ingest import ingest
+    from ltmstore.reconstruct import reconstruct
+
+    store = tmp_path_factory.mktemp("store") / "store.zarr"
+    ingest(small_acquisition, store, progress=False)
+    with Client(dask_cluster) as client:
+        reconstruct(store, client=client, lattice=(16, 16), progress=False)
+    return store

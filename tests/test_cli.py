@@ -1,0 +1,42 @@
+"""The `ltm` command as a user meets it: help, one-line errors, exit codes, nothing overwritten."""
+
+from __future__ import annotations
+
+import hashlib
+
+import pytest
+from pipeline_helpers import run_ltm
+
+
+def one_line_error(proc, pattern: str) -> None:
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert proc.stderr.count("\n") == 1, proc.stderr
+    assert proc.stderr.startswith("ltm") and pattern in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("command", ["demo", "simulate", "ingest", "ingest-rti", "reconstruct",
+                                     "relight", "evaluate", "info"])
+def test_every_command_has_help(command):
+    proc = run_ltm(command, "--help")
+    assert proc.returncode == 0 and "usage: ltm" in proc.stdout
+
+
+@pytest.mark.parametrize(("args", "pattern"), [
+    (["simulate", "{tmp}/a", "--scene", "mona-lisa"], "unknown scene 'mona-lisa'"),
+    (["simulate", "{tmp}/a", "--scene", "canvas", "--path-density", "-1"], "-1"),
+    (["simulate", "/proc/nope/a", "--scene", "canvas"], "/proc/nope"),
+    (["reconstruct", "{tmp}/missing.zarr"], "does not exist"),
+    (["reconstruct", "{tmp}/missing.zarr", "--lattice", "12"], "--lattice '12'"),
+    (["reconstruct", "{tmp}/missing.zarr", "--method", "magic"], "invalid choice: 'magic'"),
+    (["relight", "{tmp}/missing.zarr", "--light", "1;2"], "'1;2' must look like R,S"),
+    (["ingest", "{tmp}/nowhere", "{tmp}/s.zarr"], "nowhere"),
+])
+def test_bad_arguments_give_one_line_errors(args, pattern, tmp_path):
+    one_line_error(run_ltm(*[a.format(tmp=tmp_path) for a in args]), pattern)
+
+
+def test_simulate_refuses_existing_output_without_overwrite(small_acquisition):
+    digest = hashlib.sha256((small_acquisition / "poses.csv").read_bytes()).hexdigest()
+    one_line_error(run_ltm("simulate", small_acquisition, "--scene", "canvas"), "--overwrite")
+    assert hashlib.sha256((small_acquisition / "poses.csv").read_bytes()).hexdigest() == digest

@@ -1,0 +1,293 @@
+"""Video + poses -> store: decoding, linearisation, poses, chroma, rejections and bad inputs."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+
+import numpy as np
+import pytest
+import xarray as xr
+import zarr
+from ingest_helpers import (
+    EXPECTED,
+    GAINS,
+    PLANE,
+    H,
+    N,
+    W,
+    expected_chroma,
+    expected_luminance,
+    frame_times,
+    make_acquisition,
+    r_of,
+    s_of,
+    tree_hashes,
+)
+
+from ltmstore.errors import LtmError
+from ltmstore.ingest import Z_TOLERANCE_FRACTION, FrameSink, ingest, transfer_lut
+from ltmstore.store import open_group, open_store, stages
+
+CHUNK = 16  # does not divide N: the last block is partial
+
+
+@pytest.fixture(scope="module")
+def acq_dir(tmp_path_factory):
+    return make_acquisition(tmp_path_factory.mktemp("acq") / "acq")
+
+
+@pytest.fixture(scope="module")
+def ingested(acq_dir, tmp_path_factory):
+    """(store path, report, input hashes before) of the FFV1 acquisition."""
+    before = tree_hashes(acq_dir)
+    store = tmp_path_factory.mktemp("store") / "store.zarr"
+    report = ingest(acq_dir, store, progress=False, chunk_frames=CHUNK)
+    return store, report, before
+
+
+@pytest.fixture(scope="module")
+def ds(ingested):
+    return xr.open_zarr(ingested[0], consolidated=False).load()
+
+
+def sha256(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_transfer_lut():
+    srgb = transfer_lut("srgb")
+    np.testing.assert_allclose(srgb[[0, 10, 128, 255]],
+                               [0.0, 10 / 255 / 12.92, ((128 / 255 + 0.055) / 1.055) ** 2.4, 1.0],
+                               rtol=1e-6)
+    assert np.all(np.diff(srgb) > 0)
+    np.testing.assert_allclose(transfer_lut("linear"), np.arange(256) / 255, rtol=1e-6)
+    with pytest.raises(LtmError, match="transfer 'gamma' is unknown"):
+        transfer_lut("gamma")
+
+
+def test_frame_sink_streams_by_block(tmp_path):
+    """Frames reach the store one block of ``chunk_frames`` at a time, not all at the end."""
+    group = zarr.open_group(str(tmp_path / "g.zarr"), mode="w", zarr_format=3)
+    sink = FrameSink(group, transfer="linear", chunk_frames=2)
+    frame = np.full((3, 4, 3), 51, np.uint8)
+    sizes = []
+    for i in range(5):
+        sink.add(frame, i != 1, source=f"frame {i}")
+        sizes.append(group["frames"].shape[0])
+    assert sizes == [0, 2, 2, 4, 4]
+    with pytest.raises(LtmError, match=r"frame 5 is 5x3 pixels; expected 4x3"):
+        sink.add(np.zeros((3, 5, 3), np.uint8), True, source="frame 5")
+    sink.finish(np.arange(5.0))
+    assert group["frames"].shape == (5, 3, 4)
+    np.testing.assert_allclose(group["frames"][...], 0.2, rtol=1e-6)
+    np.testing.assert_allclose(group["chroma"][...], 0.0, atol=1e-6)
+
+
+def test_layout(ds):
+    assert dict(ds.sizes) == {"t": N, "y": H, "x": W, "channel": 2}
+    assert ds.frames.dims == ("t", "y", "x") and ds.frames.dtype == np.float32
+    assert ds.chroma.dims == ("y", "x", "channel") and ds.chroma.dtype == np.float32
+    for name in ("pose_r", "pose_s", "pose_z"):
+        assert ds[name].dims == ("t",) and ds[name].dtype == np.float64
+    assert ds.pose_valid.dtype == bool
+    assert list(ds.channel.values) == ["cb", "cr"]
+    np.testing.assert_array_equal(ds.y, np.arange(H))
+    np.testing.assert_array_equal(ds.x, np.arange(W))
+    assert "pose_p" not in ds
+
+
+def test_chunks(ingested):
+    lazy = xr.open_zarr(ingested[0], consolidated=False)
+    assert lazy.frames.encoding["chunks"] == (CHUNK, H, W)
+    assert lazy.frames.encoding.get("shards") is None
+
+
+def test_open_store(ingested):
+    ds = open_store(ingested[0])
+    assert ds.frames.shape == (N, H, W)
+    assert ds.attrs["acquisition"]["plane"] == PLANE.to_json()
+
+
+def test_time_coordinate(ds):
+    np.testing.assert_allclose(ds.t, frame_times(), rtol=0, atol=1e-12)
+
+
+def test_frames_round_trip(ds):
+    """Lossless video: linear luminance within 8-bit sRGB quantisation, frames in order."""
+    expected = expected_luminance()
+    np.testing.assert_allclose(ds.frames.values, expected, rtol=0.02, atol=2e-3)
+    means = ds.frames.mean(("y", "x")).values
+    np.testing.assert_array_equal(np.argsort(means), np.argsort(GAINS))
+
+
+def test_pose_interpolation(ds):
+    t = frame_times()
+    known = (t >= 0.49) & (t <= 1.51)
+    np.testing.assert_allclose(ds.pose_r.values[known], r_of(t[known]), atol=1e-7)
+    np.testing.assert_allclose(ds.pose_s.values[known], s_of(t[known]), atol=1e-7)
+    assert np.isnan(ds.pose_r.values[~known]).all()
+
+
+def test_rejections(ingested, ds):
+    _, report, _ = ingested
+    assert {k: report[k] for k in EXPECTED} == EXPECTED
+    valid = np.zeros(N, bool)
+    valid[15:30] = True
+    valid[37:41] = True
+    np.testing.assert_array_equal(ds.pose_valid.values, valid)
+    z = ds.pose_z.values
+    np.testing.assert_allclose(z[30:37], 1.2 * PLANE.height)
+    np.testing.assert_allclose(z[valid], PLANE.height)
+    assert (ds.pose_r.values[41:46] > PLANE.r[1]).all()
+
+
+def test_chroma_ratio(ds):
+    np.testing.assert_allclose(ds.chroma.values, expected_chroma(), atol=0.01)
+
+
+def test_provenance(acq_dir, ingested):
+    store, report, _ = ingested
+    group_attrs = open_store(store).attrs
+    acq = group_attrs["acquisition"]
+    assert acq["sha256"] == {"video": sha256(acq_dir / "video.mkv"),
+                             "poses": sha256(acq_dir / "poses.csv")}
+    assert acq["transfer"] == "srgb" and acq["fps"] == 30.0 and acq["frame_size"] == [H, W]
+    assert acq["video"] == "video.mkv" and acq["poses"] == "poses.csv"
+    record = stages(open_group(store))["ingest"]
+    assert record["complete"] is True
+    assert record["rejected"] == EXPECTED["rejected"]
+    assert record["z_tolerance"] == pytest.approx(Z_TOLERANCE_FRACTION * PLANE.height)
+    assert report["store"] == str(store) and report["seconds"] >= 0
+
+
+def test_inputs_unchanged(acq_dir, ingested):
+    assert tree_hashes(acq_dir) == ingested[2]
+
+
+def test_existing_store_refused_then_overwritten(acq_dir, ingested, tmp_path):
+    store = tmp_path / "copy.zarr"
+    shutil.copytree(ingested[0], store)
+    with pytest.raises(LtmError, match="already exists; pass --overwrite"):
+        ingest(acq_dir, store, progress=False)
+    report = ingest(acq_dir, store, overwrite=True, progress=True, z_tolerance=0.2)
+    assert report["rejected"]["out_of_plane"] == 0
+    assert report["n_valid"] == EXPECTED["n_valid"] + EXPECTED["rejected"]["out_of_plane"]
+    assert open_store(store).frames.encoding["chunks"] == (32, H, W)
+
+
+def test_mp4(tmp_path):
+    """Lossy mp4v: per-frame mean luminance close to the truth, frames in order."""
+    folder = make_acquisition(tmp_path / "acq", video="video.mp4")
+    report = ingest(folder, tmp_path / "s.zarr", progress=False)
+    assert {k: report[k] for k in EXPECTED} == EXPECTED
+    ds = xr.open_zarr(tmp_path / "s.zarr", consolidated=False)
+    np.testing.assert_allclose(ds.frames.mean(("y", "x")).values,
+                               expected_luminance().mean(axis=(1, 2)), rtol=0.05)
+    np.testing.assert_allclose(ds.chroma.mean(("y", "x")).values,
+                               expected_chroma().mean(axis=(0, 1)), atol=0.03)
+
+
+def test_linear_transfer(tmp_path):
+    folder = make_acquisition(tmp_path / "acq", transfer="linear")
+    ingest(folder, tmp_path / "s.zarr", progress=False)
+    ds = xr.open_zarr(tmp_path / "s.zarr", consolidated=False)
+    np.testing.assert_allclose(ds.frames.values, expected_luminance(), rtol=0.02, atol=3e-3)
+
+
+def test_time_offset(tmp_path):
+    folder = make_acquisition(tmp_path / "acq", extra={"time_offset": 0.2})
+    report = ingest(folder, tmp_path / "s.zarr", progress=False)
+    ds = xr.open_zarr(tmp_path / "s.zarr", consolidated=False)
+    t = frame_times()
+    known = (t >= 0.69) & (t <= 1.71)
+    np.testing.assert_allclose(ds.pose_r.values[known], r_of(t[known] - 0.2), atol=1e-7)
+    assert report["rejected"]["beyond_poses"] == N - known.sum()
+
+
+def test_view_poses(tmp_path):
+    """6D: p, q interpolated and written; frames whose camera leaves the view plane rejected."""
+    folder = make_acquisition(tmp_path / "acq", view=True,
+                              extra={"view_plane": {"p": [0.0, 0.1], "q": [-1.0, 1.0]}})
+    report = ingest(folder, tmp_path / "s.zarr", progress=False)
+    ds = xr.open_zarr(tmp_path / "s.zarr", consolidated=False)
+    np.testing.assert_allclose(ds.pose_p.values[15:46], 0.1 * frame_times()[15:46], atol=1e-7)
+    extra = int(((0.1 * frame_times()[15:41] > 0.1) & ~np.isin(np.arange(15, 41),
+                                                               np.arange(30, 37))).sum())
+    assert report["rejected"]["outside_bounds"] == EXPECTED["rejected"]["outside_bounds"] + extra
+    assert extra > 0
+    assert open_store(tmp_path / "s.zarr").attrs["acquisition"]["view_plane"]["p"] == [0.0, 0.1]
+
+
+def test_view_plane_without_view_poses(tmp_path):
+    folder = make_acquisition(tmp_path / "acq", extra={"view_plane": {"p": [0, 1], "q": [0, 1]}})
+    with pytest.raises(LtmError, match="declares a view_plane but the poses have no p, q"):
+        ingest(folder, tmp_path / "s.zarr", progress=False)
+
+
+def test_too_few_valid_frames(tmp_path):
+    plane = {"r": [0.45, 0.6], "s": [-0.5, 0.5], "height": 0.5}  # r > 0.45 only near the end
+    folder = make_acquisition(tmp_path / "acq", extra={"plane": plane})
+    store = tmp_path / "s.zarr"
+    with pytest.raises(LtmError, match=r"only \d of 60 frames are valid \(rejected: .*"
+                                       r"'outside_bounds': \d+\}\); expected at least 8"):
+        ingest(folder, store, progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["acq"]
+
+
+@pytest.mark.parametrize("value, match", [(0, "chunk_frames 0 must be a positive integer"),
+                                          (2.5, "chunk_frames 2.5 must be a positive integer")])
+def test_bad_chunk_frames(acq_dir, tmp_path, value, match):
+    with pytest.raises(LtmError, match=match):
+        ingest(acq_dir, tmp_path / "s.zarr", progress=False, chunk_frames=value)
+    assert not list(tmp_path.iterdir())
+
+
+def test_bad_z_tolerance(acq_dir, tmp_path):
+    with pytest.raises(LtmError, match="z_tolerance -1 must be a non-negative number"):
+        ingest(acq_dir, tmp_path / "s.zarr", progress=False, z_tolerance=-1)
+
+
+@pytest.fixture
+def broken(acq_dir, tmp_path):
+    """A copy of the acquisition whose video file is replaced by ``content``."""
+    def make(content: bytes):
+        folder = tmp_path / "acq"
+        shutil.copytree(acq_dir, folder)
+        (folder / "video.mkv").write_bytes(content)
+        return folder
+    return make
+
+
+@pytest.mark.parametrize("content", [np.random.default_rng(1).bytes(5000), b"not a video\n",
+                                     b""])
+def test_not_a_video(broken, tmp_path, content):
+    with pytest.raises(LtmError, match="video '.*video.mkv' cannot be decoded: OpenCV cannot "
+                                       "open it"):
+        ingest(broken(content), tmp_path / "s.zarr", progress=False)
+    assert not (tmp_path / "s.zarr").exists()
+
+
+def test_truncated_video(acq_dir, broken, tmp_path):
+    data = (acq_dir / "video.mkv").read_bytes()
+    with pytest.raises(LtmError, match=r"cannot be decoded: it ends after \d+ of the 60 frames"):
+        ingest(broken(data[: len(data) // 2]), tmp_path / "s.zarr", progress=False)
+    assert not (tmp_path / "s.zarr").exists()
+
+
+def test_poses_error_propagates(acq_dir, tmp_path):
+    folder = tmp_path / "acq"
+    shutil.copytree(acq_dir, folder)
+    (folder / "poses.csv").write_text("t,r,s,z\n0,0,0,0.5\n")
+    with pytest.raises(LtmError, match="1 pose sample"):
+        ingest(folder, tmp_path / "s.zarr", progress=False)
+
+
+def test_acquisition_json_error_propagates(acq_dir, tmp_path):
+    folder = tmp_path / "acq"
+    shutil.copytree(acq_dir, folder)
+    meta = json.loads((folder / "acquisition.json").read_text())
+    (folder / "acquisition.json").write_text(json.dumps({**meta, "video": "../video.mkv"}))
+    with pytest.raises(LtmError, match="leaves the folder"):
+        ingest(folder, tmp_path / "s.zarr", progress=False)
