@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -36,5 +37,6 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
         return
     n = n_workers or max(1, min(4, os.cpu_count() or 1))
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      dashboard_address=None, env=WORKER_ENV) as cluster, Client(cluster) as client:
+                      dashboard_address=None, env=WORKER_ENV, silence_logs=logging.WARNING
+                      ) as cluster, Client(cluster) as client:
         yield client

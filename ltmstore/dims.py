@@ -168,9 +168,11 @@ class Lattice:
         for axis, pos in enumerate(positions):
             lo, hi = self.bounds[axis]
             pos = np.asarray(pos, dtype=np.float64)
-            idx = np.floor((pos - lo) / self.deltas[axis]).astype(np.int64)
+            finite = np.isfinite(pos)
+            idx = np.floor((np.where(finite, pos, lo - hi) - lo) / self.deltas[axis])
+            idx = idx.astype(np.int64)
             idx = np.where(pos == hi, self.shape[axis] - 1, idx)
-            inside &= (idx >= 0) & (idx < self.shape[axis]) & np.isfinite(pos)
+            inside &= (idx >= 0) & (idx < self.shape[axis]) & finite
             flat = flat * self.shape[axis] + np.clip(idx, 0, self.shape[axis] - 1)
         return np.where(inside, flat, -1)
 

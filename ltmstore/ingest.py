@@ -48,6 +48,7 @@ from ltmstore.dims import (
 )
 from ltmstore.errors import LtmError
 from ltmstore.store import begin_stage, complete_stage, create_variable, new_store, write_coord
+from ltmstore.transfer import decode
 
 STAGE = "ingest"
 ACQUISITION_ATTR = "acquisition"
@@ -60,19 +61,9 @@ TRUNCATION_SLACK = (2, 0.02)  # frames, fraction of the declared count
 
 
 def transfer_lut(transfer: str) -> np.ndarray:
-    """Linear light of each 8-bit code value, as a (256,) float32 table.
-
-    Parameters
-    ----------
-    transfer : {"srgb", "linear"}
-        ``"srgb"``: the IEC 61966-2-1 piecewise curve on ``[0, 1]``; ``"linear"``: ``value / 255``.
-    """
-    v = np.arange(256, dtype=np.float64) / 255.0
-    if transfer == "srgb":
-        v = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
-    elif transfer != "linear":
-        raise LtmError(f"transfer {transfer!r} is unknown; expected 'srgb' or 'linear'")
-    return v.astype(np.float32)
+    """Linear light of each 8-bit code value, as a (256,) float32 table (see
+    :func:`ltmstore.transfer.decode`)."""
+    return decode(np.arange(256), transfer)
 
 
 @dataclass(frozen=True)

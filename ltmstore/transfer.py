@@ -21,17 +21,20 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055).astype(np.float32)
 
 
+def _check(transfer: str) -> None:
+    if transfer not in TRANSFERS:
+        raise LtmError(f"transfer {transfer!r} is unknown; expected one of {', '.join(TRANSFERS)}")
+
+
 def decode(code: np.ndarray, transfer: str) -> np.ndarray:
     """8-bit code values to linear light in ``[0, 1]``."""
-    if transfer not in TRANSFERS:
-        raise LtmError(f"transfer {transfer!r} must be one of {', '.join(TRANSFERS)}")
+    _check(transfer)
     v = np.asarray(code, dtype=np.float32) / 255.0
     return srgb_to_linear(v) if transfer == "srgb" else v
 
 
 def encode(linear: np.ndarray, transfer: str) -> np.ndarray:
     """Linear light to 8-bit code values (rounded, clipped)."""
-    if transfer not in TRANSFERS:
-        raise LtmError(f"transfer {transfer!r} must be one of {', '.join(TRANSFERS)}")
+    _check(transfer)
     v = linear_to_srgb(linear) if transfer == "srgb" else np.clip(linear, 0, 1)
     return np.round(np.asarray(v) * 255).astype(np.uint8)

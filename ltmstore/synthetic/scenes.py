@@ -20,6 +20,7 @@ from skimage import data as skdata
 from skimage.transform import resize
 
 from ltmstore.errors import LtmError
+from ltmstore.transfer import srgb_to_linear
 
 SCENES = ("canvas", "icon", "relief")
 OBJECT_WIDTH = 0.2  # metres: the default object is 20 cm wide
@@ -125,12 +126,6 @@ def make_scene(name: str, *, size: int = 128, seed: int = 0,
     return _BUILDERS[name](size, pitch, rng)
 
 
-def srgb_to_linear(v: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding of values in ``[0, 1]``."""
-    v = np.asarray(v, dtype=np.float64)
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
-
-
 def _picture(image: np.ndarray, size: int) -> np.ndarray:
     """Centre-crop a uint8 sRGB picture to a square, resize, linearise, map into [0.03, 0.8]."""
     h, w = image.shape[:2]
@@ -138,7 +133,7 @@ def _picture(image: np.ndarray, size: int) -> np.ndarray:
     top, left = (h - side) // 2, (w - side) // 2
     square = image[top:top + side, left:left + side, :3] / 255.0
     small = resize(square, (size, size), anti_aliasing=True)
-    return 0.03 + 0.77 * srgb_to_linear(np.clip(small, 0.0, 1.0))
+    return 0.03 + 0.77 * srgb_to_linear(np.clip(small, 0.0, 1.0)).astype(np.float64)
 
 
 def _grid(size: int) -> tuple[np.ndarray, np.ndarray]:

@@ -40,6 +40,7 @@ from ltmstore.synthetic.trajectory import (
     scribble,
     track,
 )
+from ltmstore.transfer import encode
 
 PLANE = Plane(r=(-0.2, 0.2), s=(-0.2, 0.2), height=0.3)  # a 40 cm square, 30 cm above
 DEFAULT_PATH_DENSITY = 27.0  # 1/m: K/M about 0.29 on a 32 x 32 lattice (the paper's ratio)
@@ -217,12 +218,6 @@ def _prepare_folder(folder: Path, *, overwrite: bool) -> Path:
     return folder
 
 
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB encoding of linear values in ``[0, 1]``."""
-    v = np.clip(linear, 0.0, 1.0)
-    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
-
-
 def video_frames(plan: SimulationPlan, *, exposure: float) -> Iterator[np.ndarray]:
     """The video's frames, ``(H, W, 3)`` sRGB uint8, rendered at the true light positions.
 
@@ -233,7 +228,7 @@ def video_frames(plan: SimulationPlan, *, exposure: float) -> Iterator[np.ndarra
         linear = frame.astype(np.float64) * exposure
         sigma = np.sqrt(READ_NOISE**2 + SHOT_NOISE * np.clip(linear, 0.0, None))
         noisy = linear + sigma * rng.standard_normal(linear.shape)
-        yield np.round(srgb_encode(noisy) * 255).astype(np.uint8)
+        yield encode(noisy, "srgb")
 
 
 def write_truth(path: Path, plan: SimulationPlan, truth_rgb: np.ndarray, *, exposure: float,

@@ -21,6 +21,7 @@ from ltmstore.synthetic.simulate import (
     video_frames,
 )
 from ltmstore.synthetic.trajectory import sampling_ratio
+from ltmstore.transfer import decode
 
 from .conftest import SIM_ARGS
 
@@ -102,8 +103,7 @@ def test_frames_show_the_truth_through_srgb(simulation, simulation_plan):
     rr, ss = np.meshgrid(r, s, indexing="ij")
     dist = np.hypot(lights[:, :1, None] - rr, lights[:, 1:2, None] - ss)
     k, i, j = np.unravel_index(np.argmin(dist), dist.shape)
-    frame = _decode(simulation["paths"]["video"])[k] / 255.0
-    linear = np.where(frame <= 0.04045, frame / 12.92, ((frame + 0.055) / 1.055) ** 2.4)
+    linear = decode(_decode(simulation["paths"]["video"])[k], "srgb")
     ds = xr.open_zarr(simulation["paths"]["truth"], consolidated=False)
     truth = ds["ltm_rgb"].values[:, :, i, j]
     lit = truth > 0.05
