@@ -50,7 +50,7 @@ class TilePlan:
 
 
 def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 32,
-               chunk_bytes: int = 256 * 1024) -> TilePlan:
+               chunk_bytes: int = 64 * 1024) -> TilePlan:
     """Square pixel tiles of side ``tile`` and lattice chunks of about ``chunk_bytes``.
 
     The lattice is split evenly along every axis (powers of two) until one inner chunk of a

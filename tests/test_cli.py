@@ -40,3 +40,19 @@ def test_simulate_refuses_existing_output_without_overwrite(small_acquisition):
     digest = hashlib.sha256((small_acquisition / "poses.csv").read_bytes()).hexdigest()
     one_line_error(run_ltm("simulate", small_acquisition, "--scene", "canvas"), "--overwrite")
     assert hashlib.sha256((small_acquisition / "poses.csv").read_bytes()).hexdigest() == digest
+
+
+@pytest.mark.parametrize(("damage", "pattern"), [
+    (lambda acq: (acq / "acquisition.json").write_text("{not json"), "acquisition.json"),
+    (lambda acq: (acq / "poses.csv").write_text("t,r,s,z\n0,nan,0,0.3\n1,0,0,0.3\n"), "NaN"),
+    (lambda acq: (acq / "video.mkv").write_bytes(b"not a video at all"), "video"),
+])
+def test_ingest_errors_reach_the_user_as_one_line(damage, pattern, tmp_path):
+    from ingest_helpers import make_acquisition, tree_hashes
+
+    acq = make_acquisition(tmp_path / "acq")
+    damage(acq)
+    before = tree_hashes(acq)
+    one_line_error(run_ltm("ingest", acq, tmp_path / "store.zarr"), pattern)
+    assert tree_hashes(acq) == before
+    assert not (tmp_path / "store.zarr").exists()

@@ -1,0 +1,60 @@
+"""Interrupted reconstructions never leave an ltm that looks complete."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+
+import pytest
+from pipeline_helpers import BIN, run_ltm
+
+from ltmstore import relight
+from ltmstore.errors import LtmError
+from ltmstore.reconstruct import reconstruct
+from ltmstore.store import open_group, open_store, stages
+
+
+@pytest.fixture
+def ingested(small_store, tmp_path):
+    """A copy of the session store with its reconstruct stage about to be redone."""
+    store = tmp_path / "store.zarr"
+    shutil.copytree(small_store, store)
+    return store
+
+
+def assert_not_complete(store) -> None:
+    ds = open_store(store)
+    assert "ltm" not in ds and "samples" in ds  # resample finished, the solve did not
+    assert stages(open_group(store))["reconstruct"]["complete"] is False
+
+
+def test_a_failing_solver_leaves_the_stage_incomplete(ingested, client):
+    with pytest.raises(TypeError):
+        reconstruct(ingested, client=client, lattice=(16, 16), overwrite=True,
+                    params={"n_iter": "many"}, progress=False)
+    assert_not_complete(ingested)
+    proc = run_ltm("relight", ingested, "--light", "0,0", "-o", ingested.parent / "x.png")
+    assert proc.returncode == 2 and "no complete ltm" in proc.stderr
+
+
+def test_sigkill_mid_solve_leaves_the_stage_incomplete(ingested):
+    """Kill the whole `ltm reconstruct` process group while the (slow) LARS tiles run."""
+    proc = subprocess.Popen([BIN / "ltm", "reconstruct", ingested, "--lattice", "16x16",
+                             "--method", "lars", "--tile", "8", "--overwrite"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (ingested / "ltm" / "zarr.json").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "never reached the solve"
+            time.sleep(0.05)
+        time.sleep(1.0)  # some tiles written, most not
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert_not_complete(ingested)
+    with pytest.raises(LtmError, match="no complete ltm"):
+        relight(ingested, [(0.0, 0.0)])
