@@ -205,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ltm`` console script."""
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")  # cluster chatter off
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg quiet: our errors say it
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
     args = build_parser().parse_args(argv)
     try:
         args.func(args)

@@ -44,7 +44,8 @@ def test_simulate_refuses_existing_output_without_overwrite(small_acquisition):
 
 @pytest.mark.parametrize(("damage", "pattern"), [
     (lambda acq: (acq / "acquisition.json").write_text("{not json"), "acquisition.json"),
-    (lambda acq: (acq / "poses.csv").write_text("t,r,s,z\n0,nan,0,0.3\n1,0,0,0.3\n"), "NaN"),
+    (lambda acq: (acq / "poses.csv").write_text("t,r,s,z\n0,nan,0,0.3\n1,0,0,0.3\n"),
+     "r = 'nan' is not a finite"),
     (lambda acq: (acq / "video.mkv").write_bytes(b"not a video at all"), "video"),
 ])
 def test_ingest_errors_reach_the_user_as_one_line(damage, pattern, tmp_path):
