@@ -5,6 +5,10 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+from ltmstore.dims import LTM
+from ltmstore.errors import LtmError
+from ltmstore.store import open_store
+
 
 def snr_db(truth, estimate) -> float:
     """``20 log10(||T|| / ||T - T_hat||)`` over the whole array (the paper's SNR_Y).
@@ -34,14 +38,10 @@ def psnr_db(truth, estimate, *, peak: float | None = None) -> float:
 def compare_stores(store, truth) -> dict:
     """SNR_Y of a reconstructed store against a ground-truth store on the same lattice,
     and the PSNR of images relit at five lattice cells (centre and near the corners)."""
-    from ltmstore.dims import LTM
-    from ltmstore.errors import LtmError
-    from ltmstore.store import open_store
-
     est, ref = open_store(store), open_store(truth)
-    for name, ds in (("store", est), ("truth", ref)):
+    for name, path, ds in (("store", store, est), ("truth", truth, ref)):
         if LTM not in ds:
-            raise LtmError(f"{name} {str(store if name == 'store' else truth)!r} has no ltm")
+            raise LtmError(f"{name} {str(path)!r} has no complete ltm")
     a, b = est[LTM], ref[LTM]
     for dim in b.dims:
         if a.sizes.get(dim) != b.sizes[dim] or not np.allclose(a[dim], b[dim]):

@@ -24,6 +24,13 @@ from zarr.storage import WrapperStore
 from ltmstore.errors import LtmError
 
 STAGES_ATTR = "stages"
+# Which variables each stage writes (to hide the output of stages that did not complete).
+STAGE_VARIABLES = {
+    "ingest": ("frames", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q", "pose_valid",
+               "chroma"),
+    "resample": ("samples", "count"),
+    "reconstruct": ("ltm",),
+}
 
 
 def _now() -> str:
@@ -181,14 +188,5 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
         for name in STAGE_VARIABLES.get(stage, ())
     }
     ds = ds.drop_vars([v for v in incomplete if v in ds.variables])
-    ds.attrs = {k: v for k, v in group.attrs.asdict().items()}
+    ds.attrs = dict(group.attrs.asdict())
     return ds
-
-
-# Which variables each stage writes (used to hide the output of interrupted stages).
-STAGE_VARIABLES = {
-    "ingest": ("frames", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q", "pose_valid",
-               "chroma"),
-    "resample": ("samples", "count"),
-    "reconstruct": ("ltm",),
-}

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ltmstore.acquisition import Poses
 from ltmstore.dims import LIGHT_DIMS, Lattice, Plane
 from ltmstore.errors import LtmError
 from ltmstore.synthetic.writer import FPS
@@ -36,27 +37,10 @@ SAMPLE_HZ = 240.0  # dense time sampling of the true trajectory
 
 
 @dataclass(frozen=True, eq=False)
-class Trajectory:
-    """Light positions over time (and, for 6D, camera positions on a view plane).
-
-    Parameters
-    ----------
-    t : ndarray, shape (N,)
-        Increasing times, seconds.
-    r, s : ndarray, shape (N,)
-        Light position on the illumination plane, plane units.
-    z : ndarray, shape (N,)
-        Light height above the object plane.
-    p, q : ndarray, shape (N,), optional
-        Camera position on the view plane (6D acquisitions).
+class Trajectory(Poses):
+    """Light positions over time (and, for 6D, camera positions on a view plane): the
+    :class:`~ltmstore.acquisition.Poses` record, with the geometry a simulation needs.
     """
-
-    t: np.ndarray
-    r: np.ndarray
-    s: np.ndarray
-    z: np.ndarray
-    p: np.ndarray | None = None
-    q: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.shape(self.t)
