@@ -26,7 +26,7 @@ from ltmstore import __version__, relight  # noqa: E402
 from ltmstore.evaluate import snr_db  # noqa: E402
 from ltmstore.ingest import ingest  # noqa: E402
 from ltmstore.reconstruct import reconstruct  # noqa: E402
-from ltmstore.solve import get_method  # noqa: E402
+from ltmstore.solve import Geometry, get_method  # noqa: E402
 from ltmstore.store import CountingStore, open_store  # noqa: E402
 from ltmstore.synthetic.simulate import simulate_acquisition  # noqa: E402
 
@@ -60,8 +60,9 @@ def cs_vs_lars(work: Path, *, size: int, crop: int, repeats: int) -> list[dict]:
                "sampling_ratio": info["sampling_ratio"], "crop_pixels": len(batch),
                "snr_full_cs_db": snr_db(truth, ds["ltm"]),
                "solve_s_full_cs": info["timings"]["solve_s"]}
+        geometry = Geometry.from_shape((32, 32))
         for name, reps in (("cs", repeats), ("lars", 1)):
-            seconds, est = timed(partial(get_method(name), batch, ndim=2), reps)
+            seconds, est = timed(partial(get_method(name), batch, geometry), reps)
             row[f"snr_crop_{name}_db"] = snr_db(ref, est.reshape(ref.shape))
             row[f"ms_per_pixel_{name}"] = 1e3 * seconds / len(batch)
         row["speedup"] = row["ms_per_pixel_lars"] / row["ms_per_pixel_cs"]

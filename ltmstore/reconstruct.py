@@ -22,7 +22,7 @@ from ltmstore.cluster import dask_client
 from ltmstore.dims import COUNT, LTM, SAMPLES, Lattice, Plane
 from ltmstore.errors import LtmError
 from ltmstore.resample import Binning, bin_frames, bin_positions, path_length
-from ltmstore.solve import DEFAULT_METHOD, get_method
+from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
 
@@ -83,12 +83,12 @@ def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray
 
 
 def _solve_tile(samples: np.ndarray, *, out: zarr.Array, method: str, params: dict,
-                ndim: int, block_info=None) -> np.ndarray:
+                geometry: Geometry, block_info=None) -> np.ndarray:
     """Solve one pixel tile, write it to its shard, return ``[[seconds]]``."""
     start = time.perf_counter()
     (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
     batch = samples.reshape(-1, *samples.shape[2:])
-    estimate = get_method(method)(batch, ndim=ndim, **params)
+    estimate = get_method(method)(batch, geometry, **params)
     out[y0:y1, x0:x1] = estimate.reshape(samples.shape)
     return np.full((1, 1), time.perf_counter() - start)
 
@@ -188,7 +188,8 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     start = time.perf_counter()
     out = st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
                              chunks=plan.chunks, shards=plan.shards)
-    tile_seconds = _solve_tiles(samples, out, plan, method, params, client, progress)
+    geometry = Geometry(lattice=lat, height=plane.height)
+    tile_seconds = _solve_tiles(samples, out, plan, geometry, method, params, client, progress)
     timings["solve_s"] = time.perf_counter() - start
     info = {**sampling, "method": method, "params": params, "plan": asdict(plan),
             "timings": timings,
@@ -197,12 +198,12 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     return info
 
 
-def _solve_tiles(samples: zarr.Array, out: zarr.Array, plan: TilePlan, method: str,
-                 params: dict, client: Client, progress: bool) -> list[float]:
+def _solve_tiles(samples: zarr.Array, out: zarr.Array, plan: TilePlan, geometry: Geometry,
+                 method: str, params: dict, client: Client, progress: bool) -> list[float]:
     """Run one Dask task per pixel tile; return each tile's solve time."""
     tiles = da.from_zarr(samples, chunks=plan.shards)
     seconds = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
-                               ndim=len(plan.lattice), drop_axis=list(range(2, tiles.ndim)),
+                               geometry=geometry, drop_axis=list(range(2, tiles.ndim)),
                                chunks=(1, 1), dtype=float)
     futures = client.compute(list(seconds.to_delayed().ravel()))
     tile_seconds = []

@@ -10,7 +10,7 @@ import xarray as xr
 from pipeline_helpers import dask_processes, run_ltm
 
 from ltmstore.evaluate import compare_stores, snr_db
-from ltmstore.solve import get_method
+from ltmstore.solve import Geometry, get_method
 from ltmstore.store import open_store
 
 # Measured on this acquisition (relief scene, 32 x 32 px, seed 1, 16 x 16 lattice, K/M 0.37): the
@@ -100,6 +100,7 @@ def test_lars_and_cs_agree_on_the_simulated_scene(flow_run, small_acquisition):
     samples = open_store(flow_run[0])["samples"].isel(crop).values
     truth = open_store(small_acquisition / "truth.zarr")["ltm"].isel(crop).values
     batch = samples.reshape(-1, *samples.shape[2:])
-    snr = {name: snr_db(truth, get_method(name)(batch, ndim=2).reshape(samples.shape))
+    geometry = Geometry.from_shape(samples.shape[2:])
+    snr = {name: snr_db(truth, get_method(name)(batch, geometry).reshape(samples.shape))
            for name in ("cs", "lars")}
     assert snr["cs"] > snr["lars"] - 0.5, snr

@@ -4,7 +4,7 @@ import pytest
 from ltmstore.errors import LtmError
 from ltmstore.evaluate import snr_db
 from ltmstore.operators import SensingOperator
-from ltmstore.solve import cs, get_method, lars
+from ltmstore.solve import Geometry, cs, get_method, lars
 
 
 def sparse_ltfs(n, lattice, sparsity, rng):
@@ -28,7 +28,7 @@ def test_recovers_exactly_sparse_ltf(name):
     mask[rng.choice(m, k, replace=False)] = True
     samples = np.where(mask.reshape(lattice), truth, np.nan)
     params = {"n_iter": 400, "lam_min": 1e-5} if name == "cs" else {}
-    estimate = get_method(name)(samples, ndim=2, **params)
+    estimate = get_method(name)(samples, Geometry.from_shape(lattice), **params)
     assert snr_db(truth, estimate) > 40
 
 
@@ -36,7 +36,7 @@ def test_observed_cells_are_kept():
     rng = np.random.default_rng(4)
     samples = rng.random((3, 8, 8))
     samples[rng.random((3, 8, 8)) < 0.6] = np.nan
-    out = cs.solve(samples)
+    out = cs.solve(samples, Geometry.from_shape((8, 8)))
     observed = np.isfinite(samples)
     assert np.allclose(out[observed], samples[observed], atol=1e-6)
     assert np.isfinite(out).all()
@@ -57,8 +57,9 @@ def test_fast_method_matches_lars_on_a_scene_like_ltf():
     for t in np.linspace(0, 40, 4000):  # a Lissajous scribble
         mask[int(11.99 * (1 + np.sin(1.3 * t))), int(11.99 * (1 + np.sin(0.77 * t + 1)))] = True
     samples = np.where(mask, truth, np.nan)
-    fast = snr_db(truth, cs.solve(samples))
-    reference = snr_db(truth, lars.solve(samples))
+    geometry = Geometry.from_shape((24, 24))
+    fast = snr_db(truth, cs.solve(samples, geometry))
+    reference = snr_db(truth, lars.solve(samples, geometry))
     assert fast > reference - 0.5, (fast, reference)
 
 

@@ -16,9 +16,14 @@ cost: the projection is elementwise.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ltmstore.operators import SensingOperator
+
+if TYPE_CHECKING:
+    from ltmstore.solve import Geometry
 
 
 class IterativeThresholding:
@@ -73,14 +78,14 @@ class IterativeThresholding:
         return self.estimate
 
 
-def solve(samples: np.ndarray, *, ndim: int = 2, n_iter: int = 100, lam_min: float = 1e-3,
-          workers: int = 1) -> np.ndarray:
+def solve(samples: np.ndarray, geometry: Geometry, *, n_iter: int = 100,
+          lam_min: float = 1e-3, workers: int = 1) -> np.ndarray:
     """Reconstruct a batch of LTFs; see :class:`IterativeThresholding`.
 
     Returns
     -------
     ndarray of float32, same shape as ``samples``.
     """
-    solver = IterativeThresholding(samples, ndim=ndim, n_iter=n_iter, lam_min=lam_min,
+    solver = IterativeThresholding(samples, ndim=geometry.ndim, n_iter=n_iter, lam_min=lam_min,
                                    workers=workers)
     return solver.run().astype(np.float32, copy=False)

@@ -8,13 +8,17 @@ Accurate and slow (0.1-1.5 s per pixel at 1,000-2,500 cells): kept as the yardst
 from __future__ import annotations
 
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ltmstore.operators import SensingOperator
 
+if TYPE_CHECKING:
+    from ltmstore.solve import Geometry
 
-def solve(samples: np.ndarray, *, ndim: int = 2, alpha: float = 1e-7,
+
+def solve(samples: np.ndarray, geometry: Geometry, *, alpha: float = 1e-7,
           max_iter: int = 5000) -> np.ndarray:
     """Reconstruct a batch of LTFs ``(n, *lattice)`` (NaN = unobserved) pixel by pixel.
 
@@ -26,9 +30,9 @@ def solve(samples: np.ndarray, *, ndim: int = 2, alpha: float = 1e-7,
     from sklearn.linear_model import LassoLars
 
     samples = np.asarray(samples, dtype=np.float64)
-    lattice = samples.shape[-ndim:]
+    lattice = geometry.shape
     flat = samples.reshape(len(samples), -1)
-    synthesis = SensingOperator(np.ones(lattice, bool), ndim).matrix(lattice)  # H^T, (M, M)
+    synthesis = SensingOperator(np.ones(lattice, bool), geometry.ndim).matrix(lattice)  # H^T
     out = np.zeros_like(flat)
     model = LassoLars(alpha=alpha, fit_intercept=False, max_iter=max_iter)
     with warnings.catch_warnings():
