@@ -1,13 +1,39 @@
-"""Accuracy measures: the paper's SNR_Y and PSNR of relit images."""
+"""Accuracy against a ground truth: the paper's SNR_Y, PSNR of relit images, error maps.
+
+* :func:`snr_db`: ``SNR_Y = 20 log10(||T|| / ||T - T_hat||)`` over the whole LTM (section IV-B);
+* :func:`psnr_db`: PSNR of relit images;
+* :func:`error_maps`: per-pixel mean and variance of the absolute error over the lattice (the
+  paper's Fig. 7: ``||t - t_hat||_1 / M`` and the variance of ``|t - t_hat|``);
+* :func:`compare_stores`: all of the above for a reconstructed store against a truth store.
+
+For captures without a ground truth, see :mod:`ltmstore.heldout` (held-out-light error).
+"""
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import xarray as xr
 
-from ltmstore.dims import LTM
+from ltmstore.dims import LTM, X, Y
 from ltmstore.errors import LtmError
 from ltmstore.store import open_store
+
+MEAN_ABS_ERROR, VAR_ABS_ERROR = "mean_abs_error", "var_abs_error"
+
+
+def _data(x):
+    return x.data if isinstance(x, xr.DataArray) else x
+
+
+def _compute(*values):
+    """Compute Dask values together (one pass over the inputs); NumPy values pass through."""
+    if any(hasattr(v, "compute") for v in values):
+        import dask
+
+        return dask.compute(*values)
+    return values
 
 
 def snr_db(truth, estimate) -> float:
@@ -16,14 +42,17 @@ def snr_db(truth, estimate) -> float:
     Works on NumPy, Dask or xarray inputs of the same shape; Dask inputs are reduced lazily
     and computed once.
     """
-    truth, estimate = (x.data if isinstance(x, xr.DataArray) else x for x in (truth, estimate))
-    diff = truth - estimate
-    num = (truth.astype(np.float64) ** 2).sum()
-    den = (diff.astype(np.float64) ** 2).sum()
-    if hasattr(num, "compute"):
-        import dask
+    truth, estimate = _data(truth), _data(estimate)
+    num, den = _compute(*_energies(truth, estimate))
+    return _db(num, den)
 
-        num, den = dask.compute(num, den)
+
+def _energies(truth, estimate):
+    diff = truth - estimate
+    return (truth.astype(np.float64) ** 2).sum(), (diff.astype(np.float64) ** 2).sum()
+
+
+def _db(num, den) -> float:
     return float(10 * np.log10(float(num) / max(float(den), 1e-300)))
 
 
@@ -35,9 +64,91 @@ def psnr_db(truth, estimate, *, peak: float | None = None) -> float:
     return float(10 * np.log10(peak**2 / max(mse, 1e-300)))
 
 
-def compare_stores(store, truth) -> dict:
-    """SNR_Y of a reconstructed store against a ground-truth store on the same lattice,
-    and the PSNR of images relit at five lattice cells (centre and near the corners)."""
+def _abs_error_moments(truth, estimate):
+    """Lazy (for Dask) per-pixel mean and variance of ``|truth - estimate|`` over axes 2..."""
+    axes = tuple(range(2, truth.ndim))
+    err = abs(truth.astype(np.float64) - estimate.astype(np.float64))
+    return err.mean(axis=axes), err.var(axis=axes)
+
+
+def _maps_dataset(mean, var, like) -> xr.Dataset:
+    coords = {}
+    if isinstance(like, xr.DataArray):
+        coords = {d: like[d].values for d in like.dims[:2] if d in like.coords}
+    dims = like.dims[:2] if isinstance(like, xr.DataArray) else (Y, X)
+    attrs = {"definition": "over the lattice cells of each pixel: mean |T - T_hat| "
+                           "(= ||T - T_hat||_1 / M) and the variance of |T - T_hat|"}
+    return xr.Dataset({MEAN_ABS_ERROR: (dims, np.asarray(mean)),
+                       VAR_ABS_ERROR: (dims, np.asarray(var))}, coords=coords, attrs=attrs)
+
+
+def _check_shapes(truth, estimate) -> None:
+    if np.shape(truth) != np.shape(estimate):
+        raise LtmError(f"truth shape {np.shape(truth)} and estimate shape "
+                       f"{np.shape(estimate)} must be equal")
+    if len(np.shape(truth)) < 3:
+        raise LtmError(f"error maps need (y, x, *lattice) arrays, got shape {np.shape(truth)}")
+
+
+def error_maps(truth, estimate) -> xr.Dataset:
+    """Per-pixel mean and variance of the absolute error over the lattice (the paper's Fig. 7).
+
+    Parameters
+    ----------
+    truth, estimate : array_like, shape (y, x, *lattice)
+        NumPy, Dask or xarray; Dask inputs are reduced in one pass.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``mean_abs_error (y, x)``: ``||t - t_hat||_1 / M`` per pixel; ``var_abs_error (y, x)``:
+        the variance (over the ``M`` cells, ``ddof=0``) of ``|t - t_hat|``. Float64; pixel
+        coordinates are kept from an xarray ``truth``.
+
+    Raises
+    ------
+    LtmError
+        Shapes differ, or fewer than three dimensions.
+    """
+    _check_shapes(truth, estimate)
+    mean, var = _compute(*_abs_error_moments(_data(truth), _data(estimate)))
+    return _maps_dataset(mean, var, truth)
+
+
+def summarise_maps(maps: xr.Dataset) -> dict[str, float]:
+    """Median and maximum of each error map (NaN-aware), as plain floats."""
+    out = {}
+    for name in (MEAN_ABS_ERROR, VAR_ABS_ERROR):
+        values = maps[name].values
+        out[f"{name}_median"] = float(np.nanmedian(values))
+        out[f"{name}_max"] = float(np.nanmax(values))
+    return out
+
+
+def plot_error_maps(maps: xr.Dataset, path: str | os.PathLike, *, title: str | None = None) -> None:
+    """Write the two error maps side by side as a PNG (Matplotlib's Agg canvas, no pyplot)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 4), layout="constrained")
+    FigureCanvasAgg(fig)
+    labels = {MEAN_ABS_ERROR: "mean of |T - T_hat| over the lattice",
+              VAR_ABS_ERROR: "variance of |T - T_hat| over the lattice"}
+    for ax, (name, label) in zip(fig.subplots(1, 2), labels.items(), strict=True):
+        image = ax.imshow(maps[name].values, cmap="magma", interpolation="nearest")
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
+        fig.colorbar(image, ax=ax, shrink=0.85)
+    if title:
+        fig.suptitle(title)
+    try:
+        fig.savefig(os.fspath(path), dpi=100)
+    except OSError as exc:
+        raise LtmError(f"cannot write {str(path)!r}: {exc.strerror or exc}") from exc
+
+
+def _open_pair(store, truth) -> tuple[xr.DataArray, xr.DataArray]:
     est, ref = open_store(store), open_store(truth)
     for name, path, ds in (("store", store, est), ("truth", truth, ref)):
         if LTM not in ds:
@@ -47,9 +158,37 @@ def compare_stores(store, truth) -> dict:
         if a.sizes.get(dim) != b.sizes[dim] or not np.allclose(a[dim], b[dim]):
             raise LtmError(f"lattices differ along {dim!r}: store {a.sizes.get(dim)} cells, "
                            f"truth {b.sizes[dim]}; reconstruct with the truth's --lattice")
+    return a, b
+
+
+def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -> dict:
+    """A reconstructed store against a ground-truth store on the same lattice.
+
+    Parameters
+    ----------
+    store, truth : path-like
+        The reconstructed store and the truth store (``truth.zarr`` of a simulation).
+    maps_png : path-like, optional
+        Also write the two error maps as a PNG there (see :func:`plot_error_maps`).
+
+    Returns
+    -------
+    dict
+        ``snr_y_db`` (the whole LTM), ``psnr_db`` of images relit at five lattice cells (centre
+        and near the corners) with their ``cells`` and ``psnr_db_median``, and the median and
+        maximum of the error maps: ``mean_abs_error_median``, ``mean_abs_error_max``,
+        ``var_abs_error_median``, ``var_abs_error_max`` (plus ``maps_png`` when written).
+    """
+    a, b = _open_pair(store, truth)
     n, m = a.sizes["r"], a.sizes["s"]
     cells = [(n // 2, m // 2), (n // 4, m // 4), (3 * n // 4, m // 4), (n // 4, 3 * m // 4),
              (3 * n // 4, 3 * m // 4)]
     psnr = [psnr_db(b.isel(r=i, s=j).values, a.isel(r=i, s=j).values) for i, j in cells]
-    return {"snr_y_db": snr_db(b, a), "psnr_db_median": float(np.median(psnr)),
-            "psnr_db": psnr, "cells": cells}
+    num, den, mean, var = _compute(*_energies(b.data, a.data), *_abs_error_moments(b.data, a.data))
+    maps = _maps_dataset(mean, var, b)
+    out = {"snr_y_db": _db(num, den), "psnr_db_median": float(np.median(psnr)),
+           "psnr_db": psnr, "cells": cells, **summarise_maps(maps)}
+    if maps_png is not None:
+        plot_error_maps(maps, maps_png, title=f"absolute error, SNR_Y {out['snr_y_db']:.2f} dB")
+        out["maps_png"] = os.fspath(maps_png)
+    return out

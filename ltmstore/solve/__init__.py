@@ -15,7 +15,7 @@ import numpy as np
 
 from ltmstore.dims import Lattice
 from ltmstore.errors import LtmError
-from ltmstore.solve import cs, lars
+from ltmstore.solve import cs, cubic, hsh, kernel, lars, omp, ptm, rbf, svt
 
 
 @dataclass(frozen=True)
@@ -63,7 +63,9 @@ class Geometry:
 
 Method = Callable[..., np.ndarray]
 
-METHODS: dict[str, Method] = {"cs": cs.solve, "lars": lars.solve}
+METHODS: dict[str, Method] = {"cs": cs.solve, "lars": lars.solve, "omp": omp.solve,
+                              "cubic": cubic.solve, "kernel": kernel.solve, "svt": svt.solve,
+                              "ptm": ptm.solve, "hsh": hsh.solve, "rbf": rbf.solve}
 DEFAULT_METHOD = "cs"
 
 

@@ -1,0 +1,285 @@
+"""Held-out error: how well a method predicts observed cells it did not see (no truth needed).
+
+Cross-validation on the lattice: in each fold a random subset of the observed cells is hidden,
+the method is fitted on the rest, and its prediction at the hidden cells is compared with the
+binned samples there. On a classic RTI capture every cell holds one light, so this is the
+RTI world's leave-lights-out test; on a handheld capture it is leave-cells-out.
+
+When all pixels of the batch share one sampling mask (every handheld or RTI capture), all pixels
+hide the same cells in a fold, so a batched method still sees one shared mask; otherwise each
+pixel draws its own cells. ``block > 1`` hides square blocks of ``block x block`` cells instead of
+single cells: a harder, more honest test for trajectories, whose neighbouring cells along the
+path are nearly copies of each other.
+
+Held-out cells are scored against the binned samples, not a truth: noise in the samples counts
+as error, and cells far from every observation (large empty regions of the plane) are never
+scored, because nothing is observed there. :func:`ltmstore.confidence.flag_unsupported` reports
+those.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from dataclasses import dataclass
+from itertools import product
+
+import numpy as np
+
+from ltmstore.dims import SAMPLES, Lattice
+from ltmstore.errors import LtmError
+from ltmstore.solve import Geometry, Method, get_method
+from ltmstore.store import open_store
+
+
+@dataclass(frozen=True, eq=False)
+class HeldOut:
+    """Result of :func:`heldout_error`.
+
+    Attributes
+    ----------
+    rms : ndarray, shape (n,)
+        Per-pixel RMS error over that pixel's held-out cells (all folds); NaN where no cell could
+        be held out (fewer than two observed blocks).
+    count : ndarray, shape (n,)
+        Number of held-out cells per pixel (all folds together).
+    relative_error : float
+        ``||b_held - prediction|| / ||b_held||`` over every held-out (pixel, cell).
+    snr_db : float
+        ``20 log10(||b_held|| / ||b_held - prediction||)``: the held-out analogue of SNR_Y.
+    folds : int
+    cells_per_fold : tuple of float
+        Mean number of held-out cells per pixel in each fold (whole numbers for a shared mask).
+    shared_mask : bool
+        Whether all pixels had the same mask (and so held out the same cells).
+    """
+
+    rms: np.ndarray
+    count: np.ndarray
+    relative_error: float
+    snr_db: float
+    folds: int
+    cells_per_fold: tuple[float, ...]
+    shared_mask: bool
+
+
+def _check_split(folds: int, fraction: float | None, block: int) -> float:
+    if int(folds) != folds or folds < 1:
+        raise LtmError(f"folds {folds!r} must be a positive integer")
+    if int(block) != block or block < 1:
+        raise LtmError(f"block {block!r} must be a positive integer (cells per side)")
+    fraction = 1.0 / folds if fraction is None else float(fraction)
+    if not (0 < fraction <= 1.0 / folds):
+        raise LtmError(f"fraction {fraction!r} must be in (0, 1/folds] = (0, {1 / folds:.3g}]: "
+                       "the folds hold out disjoint cells")
+    return fraction
+
+
+def _blocks(mask: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Block id of every lattice cell ``(M,)`` and the observed blocks of each row ``(n, B)``."""
+    lattice = mask.shape[1:]
+    nb = tuple(-(-s // block) for s in lattice)
+    ids = np.ravel_multi_index(np.indices(lattice).reshape(len(lattice), -1) // block, nb)
+    pad = [(0, 0)] + [(0, b * block - s) for b, s in zip(nb, lattice, strict=True)]
+    padded = np.pad(mask, pad)
+    split = padded.reshape(len(mask), *[d for b in nb for d in (b, block)])
+    observed = split.any(axis=tuple(range(2, split.ndim, 2))).reshape(len(mask), -1)
+    return ids, observed
+
+
+def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, block: int = 1,
+                seed: int = 0) -> np.ndarray:
+    """Which fold hides each observed cell: ``(n, *lattice)`` int, -1 for never hidden.
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (n, *lattice)
+        Observed cells of each pixel.
+    folds : int
+        Number of folds; they hide disjoint sets of cells.
+    fraction : float, optional
+        Fraction of each pixel's observed blocks hidden per fold (default ``1 / folds``: every
+        observed cell is hidden once, as in k-fold cross-validation). At least one block per
+        pixel is always kept for fitting.
+    block : int
+        Hide square blocks of ``block`` cells per side (1: single cells).
+    seed : int
+
+    Returns
+    -------
+    ndarray of int16
+        When all rows of ``mask`` are equal, all rows get the same assignment.
+    """
+    fraction = _check_split(folds, fraction, block)
+    mask = np.asarray(mask, dtype=bool)
+    shared = bool((mask == mask[:1]).all())
+    rows = mask[:1] if shared else mask
+    ids, observed = _blocks(rows, block)
+    keys = np.where(observed, np.random.default_rng([seed, 606]).random(observed.shape), np.inf)
+    rank = np.empty_like(observed, dtype=np.int64)
+    np.put_along_axis(rank, np.argsort(keys, axis=1),
+                      np.broadcast_to(np.arange(keys.shape[1]), keys.shape), axis=1)
+    k = observed.sum(axis=1, keepdims=True)
+    size = np.minimum(np.floor(k * fraction), (k - 1) // folds).astype(np.int64)
+    block_fold = np.where(rank < folds * size, rank // np.maximum(size, 1), -1)
+    fold = np.where(rows.reshape(len(rows), -1), block_fold[:, ids], -1).astype(np.int16)
+    fold = fold.reshape(rows.shape)
+    return np.broadcast_to(fold, mask.shape).copy() if shared else fold
+
+
+def _method(method: str | Method) -> Method:
+    return get_method(method) if isinstance(method, str) else method
+
+
+def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method, *,
+                  folds: int = 5, seed: int = 0, params: dict | None = None,
+                  fraction: float | None = None, block: int = 1) -> HeldOut:
+    """Cross-validated error of ``method`` on a batch of binned LTFs (no ground truth needed).
+
+    Parameters
+    ----------
+    samples : ndarray, shape (n, *lattice)
+        Binned samples, NaN where unobserved (one row per pixel).
+    geometry : Geometry
+    method : str or callable
+        A name from :data:`ltmstore.solve.METHODS`, or a function with the same signature.
+    folds : int
+        Number of folds (one fit of the method each).
+    seed : int
+        Seed of the random choice of held-out cells.
+    params : dict, optional
+        Keyword arguments of the method.
+    fraction, block
+        See :func:`split_folds`.
+
+    Returns
+    -------
+    HeldOut
+    """
+    solve, params = _method(method), dict(params or {})
+    samples = np.asarray(samples)
+    if samples.dtype.kind != "f":
+        samples = samples.astype(np.float64)
+    n = len(samples)
+    mask = np.isfinite(samples)
+    fold = split_folds(mask, folds, fraction=fraction, block=block, seed=seed)
+    sq, count = np.zeros(n), np.zeros(n, dtype=np.int64)
+    ref = res = 0.0
+    per_fold = []
+    for f in range(folds):
+        hidden = (fold == f).reshape(n, -1)
+        per_fold.append(float(hidden.sum()) / max(n, 1))
+        rows = np.flatnonzero(hidden.any(axis=1))
+        if rows.size == 0:
+            continue
+        train = np.where(hidden[rows].reshape(-1, *samples.shape[1:]), np.nan, samples[rows])
+        pred = np.asarray(solve(train, geometry, **params), dtype=np.float64).reshape(len(rows), -1)
+        truth = samples[rows].reshape(len(rows), -1).astype(np.float64)
+        err = np.where(hidden[rows], pred - truth, 0.0)
+        sq[rows] += (err**2).sum(axis=1)
+        count[rows] += hidden[rows].sum(axis=1)
+        ref += float((np.where(hidden[rows], truth, 0.0) ** 2).sum())
+        res += float((err**2).sum())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.where(count > 0, np.sqrt(sq / np.maximum(count, 1)), np.nan)
+        rel = float(np.sqrt(res / ref)) if ref > 0 else float("nan")
+        snr = float(10 * np.log10(ref / max(res, 1e-300))) if ref > 0 else float("nan")
+    return HeldOut(rms=rms, count=count, relative_error=rel, snr_db=snr, folds=int(folds),
+                   cells_per_fold=tuple(per_fold), shared_mask=bool((mask == mask[:1]).all()))
+
+
+def observed_range(samples: np.ndarray) -> np.ndarray:
+    """Per-pixel ``max - min`` of the observed cells, ``(n,)`` float64 (NaN: none observed)."""
+    flat = np.asarray(samples, dtype=np.float64).reshape(len(samples), -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows
+        return np.nanmax(flat, axis=1) - np.nanmin(flat, axis=1)
+
+
+def store_geometry(ds) -> Geometry:
+    """The lattice and plane height of a resampled store (from its provenance)."""
+    entry = stages_of(ds).get("resample", {})
+    try:
+        lat = entry["lattice"]
+        lattice = Lattice(bounds=tuple(tuple(float(v) for v in b) for b in lat["bounds"]),
+                          shape=tuple(int(v) for v in lat["shape"]), dims=tuple(lat["dims"]))
+        height = float(ds.attrs["acquisition"]["plane"]["height"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise LtmError(f"store has no usable resample record ({exc}); run ltm reconstruct") \
+            from exc
+    return Geometry(lattice=lattice, height=height)
+
+
+def stages_of(ds) -> dict:
+    """Stage records of an opened store (its ``stages`` attribute)."""
+    return dict(ds.attrs.get("stages", {}))
+
+
+def _pick_pixels(arr, max_pixels: int, rng: np.random.Generator) -> np.ndarray:
+    """Up to ``max_pixels`` random pixels ``(n, *lattice)``, read from random whole tiles only."""
+    import dask
+
+    tiles = list(product(*(range(len(c)) for c in arr.chunks[:2])))
+    picked, total = [], 0
+    for index in rng.permutation(len(tiles)):
+        i, j = tiles[index]
+        picked.append(arr.blocks[i, j])
+        total += arr.chunks[0][i] * arr.chunks[1][j]
+        if total >= max_pixels:
+            break
+    data = np.concatenate([b.reshape(-1, *arr.shape[2:]) for b in dask.compute(*picked)])
+    if len(data) > max_pixels:
+        data = data[np.sort(rng.choice(len(data), max_pixels, replace=False))]
+    return data
+
+
+def heldout_store(store: str | os.PathLike, *, method: str = "cs", folds: int = 5,
+                  max_pixels: int = 4096, seed: int = 0, params: dict | None = None,
+                  fraction: float | None = None, block: int = 1) -> dict:
+    """Held-out error of ``method`` on the binned samples of a resampled store.
+
+    Reads ``samples`` (written by ``ltm reconstruct``) from a random subset of whole pixel
+    tiles, up to ``max_pixels`` pixels, and runs :func:`heldout_error` on them.
+
+    Returns
+    -------
+    dict
+        ``method``, ``params``, ``folds``, ``fraction``, ``block``, ``pixels``, ``K`` (mean
+        observed cells per pixel), ``M``, ``relative_error``, ``heldout_snr_db``,
+        ``rms_median``, ``rms_p90``, ``relative_rms_median`` (RMS over the pixel's observed
+        range), ``cells_per_fold``, ``shared_mask``, ``seconds``.
+
+    Raises
+    ------
+    LtmError
+        The store has no complete ``samples``, or bad arguments.
+    """
+    if int(max_pixels) != max_pixels or max_pixels < 1:
+        raise LtmError(f"max_pixels {max_pixels!r} must be a positive integer")
+    _method(method)
+    ds = open_store(store)
+    if SAMPLES not in ds:
+        raise LtmError(f"store {str(store)!r} has no complete samples; run ltm reconstruct first")
+    geometry = store_geometry(ds)
+    start = time.perf_counter()
+    samples = _pick_pixels(ds[SAMPLES].data, int(max_pixels), np.random.default_rng([seed, 707]))
+    result = heldout_error(samples, geometry, method, folds=folds, seed=seed, params=params,
+                           fraction=fraction, block=block)
+    observed = np.isfinite(samples).reshape(len(samples), -1)
+    spread = observed_range(samples)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        relative = result.rms / np.where(spread > 0, spread, np.nan)
+    return {"method": method, "params": dict(params or {}), "folds": result.folds,
+            "fraction": _check_split(folds, fraction, block), "block": int(block),
+            "pixels": len(samples), "K": float(observed.sum(axis=1).mean()),
+            "M": int(observed.shape[1]), "relative_error": result.relative_error,
+            "heldout_snr_db": result.snr_db, "rms_median": _nan_stat(np.nanmedian, result.rms),
+            "rms_p90": _nan_stat(lambda v: np.nanpercentile(v, 90), result.rms),
+            "relative_rms_median": _nan_stat(np.nanmedian, relative),
+            "cells_per_fold": list(result.cells_per_fold), "shared_mask": result.shared_mask,
+            "seconds": time.perf_counter() - start}
+
+
+def _nan_stat(func, values: np.ndarray) -> float:
+    return float(func(values)) if np.isfinite(values).any() else float("nan")
