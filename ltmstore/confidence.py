@@ -8,9 +8,9 @@ unobserved), for the reconstruct stage to store as ``expected_error (y, x)`` and
   :func:`ltmstore.heldout.heldout_error`, a small fraction of the cells hidden), relative to the
   pixel's observed range. It measures how well the method interpolates *between* observations.
 * :func:`flag_unsupported`: whether the observations can support any model at all: too few
-  observed cells, or a region of the lattice so far from every observation (the radius of the
-  largest empty disc, :func:`coverage_gap`) that the values there are guesses. Held-out cells
-  can never reveal this, since nothing is observed there to hold out.
+  observed cells, or too much of the lattice far from every observation (:func:`coverage`,
+  :func:`coverage_gap`), where the values are guesses. Held-out cells can never reveal this,
+  since nothing is observed there to hold out.
 """
 
 from __future__ import annotations
@@ -23,12 +23,33 @@ from ltmstore.heldout import heldout_error, observed_range
 from ltmstore.solve import Geometry, Method
 
 MIN_CELLS = 8  # below this many observed cells no smooth LTF model is determined
-# Largest empty disc, as a fraction of the lattice side. 0.25 means a hole half the plane wide.
-# Measured on 16 x 16 lattices (tests/test_stability.py, seed 0): about 0.13 for the paper's
-# K/M 0.3 scribble, 0.25-0.28 for K/M 0.03 (8 cells), 0.5 when half the plane is empty.
-MAX_GAP = 0.2
+# Coverage: the fraction of the lattice within COVER_RADIUS (a fraction of the lattice side) of
+# an observed cell. Measured over 12 seeds of the simulated scribble (tests/test_stability.py):
+# the paper's K/M 0.29-0.35 gives 0.75-0.91 on 16 x 16 and 0.87-0.98 on 32 x 32 lattices; a hand
+# that stays in one half of the plane 0.43-0.57; K/M 0.03-0.06 (a very short path) 0.10-0.29.
+# The largest empty disc (coverage_gap) separates these less well: 0.23-0.45 for the paper's
+# 16 x 16 scribbles against 0.52-0.71 for the half-empty plane, so it is off by default.
+COVER_RADIUS = 0.125
+MIN_COVERAGE = 0.7
 EXPECTED_ERROR_FRACTION = 0.1  # cells hidden per fold by expected_error
 _FAR = 1e6  # distance between rows of the batch, in lattice sides: "never the nearest"
+
+
+def _distances(mask: np.ndarray, geometry: Geometry) -> np.ndarray:
+    """Distance from every cell centre to the nearest observed one, in lattice sides, ``(n, M)``
+    (``inf`` in rows with no observed cell)."""
+    mask = np.asarray(mask, dtype=bool)
+    _check_batch(mask, geometry)
+    n = len(mask)
+    any_obs = mask.reshape(n, -1).any(axis=1)
+    dist = np.full((n, int(np.prod(geometry.shape))), np.inf)
+    if any_obs.any():
+        # One Euclidean distance transform over the whole batch: the batch axis is so coarsely
+        # sampled that the nearest observed cell always lies in the same row.
+        sampling = (_FAR, *(1.0 / s for s in geometry.shape))
+        edt = ndimage.distance_transform_edt(~mask[any_obs], sampling=sampling)
+        dist[any_obs] = edt.reshape(int(any_obs.sum()), -1)
+    return dist
 
 
 def coverage_gap(mask: np.ndarray, geometry: Geometry) -> np.ndarray:
@@ -49,24 +70,24 @@ def coverage_gap(mask: np.ndarray, geometry: Geometry) -> np.ndarray:
     ndarray, shape (n,), float64
         0 for a fully observed row; ``inf`` for a row with no observed cell.
     """
-    mask = np.asarray(mask, dtype=bool)
-    _check_batch(mask, geometry)
-    n = len(mask)
-    any_obs = mask.reshape(n, -1).any(axis=1)
-    gap = np.full(n, np.inf)
-    if not any_obs.any():
-        return gap
-    # One Euclidean distance transform over the whole batch: the batch axis is so coarsely
-    # sampled that the nearest observed cell always lies in the same row.
-    sampling = (_FAR, *(1.0 / s for s in geometry.shape))
-    dist = ndimage.distance_transform_edt(~mask[any_obs], sampling=sampling)
-    gap[any_obs] = dist.reshape(int(any_obs.sum()), -1).max(axis=1)
-    return gap
+    return _distances(mask, geometry).max(axis=1)
+
+
+def coverage(mask: np.ndarray, geometry: Geometry, *, radius: float = COVER_RADIUS) -> np.ndarray:
+    """Fraction of the lattice within ``radius`` (a fraction of the lattice side) of an
+    observed cell, per row ``(n,)``: 1 for a trajectory that visits the whole plane."""
+    return (_distances(mask, geometry) <= radius).mean(axis=1)
 
 
 def flag_unsupported(samples: np.ndarray, geometry: Geometry, *, min_cells: int = MIN_CELLS,
-                     max_gap: float = MAX_GAP) -> np.ndarray:
+                     min_coverage: float = MIN_COVERAGE, radius: float = COVER_RADIUS,
+                     max_gap: float | None = None) -> np.ndarray:
     """Pixels whose observations cannot support a reconstruction.
+
+    A pixel is flagged when it has fewer than ``min_cells`` observed cells, or when less than
+    ``min_coverage`` of the lattice lies within ``radius`` of an observed cell (see
+    :func:`coverage`: a large part of the plane is a guess), or, if ``max_gap`` is given, when
+    its largest empty disc (:func:`coverage_gap`) is wider than that.
 
     Parameters
     ----------
@@ -74,9 +95,10 @@ def flag_unsupported(samples: np.ndarray, geometry: Geometry, *, min_cells: int 
         Binned samples, NaN where unobserved.
     geometry : Geometry
     min_cells : int
-        Flag a pixel with fewer observed cells than this.
-    max_gap : float
-        Flag a pixel whose :func:`coverage_gap` exceeds this fraction of the lattice side.
+    min_coverage : float
+    radius : float
+        Fractions of the lattice side.
+    max_gap : float, optional
 
     Returns
     -------
@@ -84,7 +106,11 @@ def flag_unsupported(samples: np.ndarray, geometry: Geometry, *, min_cells: int 
     """
     mask = np.isfinite(np.asarray(samples))
     k = mask.reshape(len(mask), -1).sum(axis=1)
-    return (k < min_cells) | (coverage_gap(mask, geometry) > max_gap)
+    dist = _distances(mask, geometry)
+    flags = (k < min_cells) | ((dist <= radius).mean(axis=1) < min_coverage)
+    if max_gap is not None:
+        flags |= dist.max(axis=1) > max_gap
+    return flags
 
 
 def expected_error(samples: np.ndarray, geometry: Geometry, method: str | Method, *,
@@ -130,5 +156,6 @@ def expected_error(samples: np.ndarray, geometry: Geometry, method: str | Method
 
 def _check_batch(mask: np.ndarray, geometry: Geometry) -> None:
     if mask.shape[1:] != tuple(geometry.shape):
+        want = ", ".join(map(str, geometry.shape))
         raise LtmError(f"samples of shape {mask.shape} do not match the lattice "
-                       f"{tuple(geometry.shape)}; expected (n, {', '.join(map(str, geometry.shape))})")
+                       f"{tuple(geometry.shape)}; expected (n, {want})")

@@ -100,8 +100,8 @@ def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, 
         Number of folds; they hide disjoint sets of cells.
     fraction : float, optional
         Fraction of each pixel's observed blocks hidden per fold (default ``1 / folds``: every
-        observed cell is hidden once, as in k-fold cross-validation). At least one block per
-        pixel is always kept for fitting.
+        observed cell is hidden once, as in k-fold cross-validation); at least one block per
+        fold, and at least one block per pixel is always kept for fitting.
     block : int
         Hide square blocks of ``block`` cells per side (1: single cells).
     seed : int
@@ -121,7 +121,7 @@ def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, 
     np.put_along_axis(rank, np.argsort(keys, axis=1),
                       np.broadcast_to(np.arange(keys.shape[1]), keys.shape), axis=1)
     k = observed.sum(axis=1, keepdims=True)
-    size = np.minimum(np.floor(k * fraction), (k - 1) // folds).astype(np.int64)
+    size = np.minimum(np.maximum(np.floor(k * fraction), 1), (k - 1) // folds).astype(np.int64)
     block_fold = np.where(rank < folds * size, rank // np.maximum(size, 1), -1)
     fold = np.where(rows.reshape(len(rows), -1), block_fold[:, ids], -1).astype(np.int16)
     fold = fold.reshape(rows.shape)

@@ -103,7 +103,7 @@ def _write_samples(group: zarr.Group, frames: da.Array, binning: Binning,
     count[...] = binning.count
     samples = st.create_variable(group, SAMPLES, ("y", "x", *lattice.dims),
                                  (*plan.image, *lattice.shape), chunks=plan.shards)
-    binned = bin_frames(frames, binning).rechunk(plan.shards)
+    binned = bin_frames(frames, binning, tile=plan.tile).rechunk(plan.shards)
     client.compute(da.store(binned, samples, lock=False, compute=False)).result()
     return samples
 

@@ -1,9 +1,9 @@
 """Binning of the frames onto the lattice (the paper's eq. 2): a Dask reduction over time.
 
 Each valid frame falls in one lattice cell; a cell's sample is the mean of its frames (box
-kernel). Per block of frames, a one-hot ``(t, M)`` matrix times the ``(t, pixels)`` block gives
-partial sums; Dask adds the partial sums of all blocks (``tensordot`` contracts over the chunked
-time axis as a tree reduction), so no more than one block of frames is ever in memory.
+kernel). Per block of frames and pixel tile, sorting the frames by cell and summing segments
+gives partial sums; Dask adds the partial sums of all blocks as a tree reduction over time, so
+no more than one block of frames per tile is ever in memory.
 """
 
 from __future__ import annotations
@@ -53,25 +53,41 @@ def bin_positions(lattice: Lattice, positions: tuple[np.ndarray, ...],
     return Binning(lattice=lattice, cell=cell, count=count)
 
 
-def _one_hot(cell: np.ndarray, m: int) -> np.ndarray:
-    hot = np.zeros((len(cell), m), dtype=np.float32)
-    used = cell >= 0
-    hot[np.flatnonzero(used), cell[used]] = 1.0
-    return hot
+def _block_sums(block: np.ndarray, cells: np.ndarray, *, m: int) -> np.ndarray:
+    """Per-cell sums of one block of frames: ``(t, y, x)`` -> ``(1, y, x, M)``."""
+    cells = cells[:, 0, 0]
+    used = np.flatnonzero(cells >= 0)
+    out = np.zeros((1, *block.shape[1:], m), dtype=np.float32)
+    if used.size:
+        order = used[np.argsort(cells[used], kind="stable")]
+        sorted_cells = cells[order]
+        starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+        sums = np.add.reduceat(block[order].astype(np.float32), starts, axis=0)
+        out[0][..., sorted_cells[starts]] = np.moveaxis(sums, 0, -1)
+    return out
 
 
-def bin_frames(frames: da.Array, binning: Binning) -> da.Array:
+def bin_frames(frames: da.Array, binning: Binning, *, block_frames: int = 512,
+               tile: tuple[int, int] = (32, 32)) -> da.Array:
     """Mean of the frames in each cell, NaN where none: lazy ``(y, x, *lattice)`` float32.
+
+    Each block of ``block_frames`` frames of a pixel ``tile`` is reduced to per-cell sums
+    (sort by cell, segment sums: O(frames x pixels), not O(frames x pixels x cells)); Dask adds
+    the partial sums of the blocks. Memory per task: one block and one ``(tile, M)`` partial.
 
     Parameters
     ----------
     frames : dask.array.Array
-        ``(t, y, x)`` linear luminance, chunked along ``t``.
+        ``(t, y, x)`` linear luminance.
     binning : Binning
         The cell of every frame (``-1`` = not used).
     """
-    one_hot = da.from_array(_one_hot(binning.cell, binning.m), chunks=(frames.chunks[0], -1))
-    sums = da.tensordot(frames.astype(np.float32), one_hot, axes=([0], [0]))  # (y, x, M)
+    frames = frames.rechunk((block_frames, *tile))
+    cells = da.from_array(binning.cell[:, None, None], chunks=(frames.chunks[0], 1, 1))
+    partial = da.map_blocks(_block_sums, frames, cells, m=binning.m, new_axis=3,
+                            chunks=((1,) * frames.numblocks[0], *frames.chunks[1:],
+                                    (binning.m,)), dtype=np.float32)
+    sums = partial.sum(axis=0, split_every=8)
     count = binning.count.reshape(-1).astype(np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
         means = sums / np.where(count > 0, count, np.nan)

@@ -16,7 +16,7 @@ def test_binning_is_the_mean_of_each_cell_on_hand_made_samples():
     valid = np.array([True, True, True, True, False, True])
     frames = np.arange(6 * 2 * 3, dtype=np.float32).reshape(6, 2, 3)
     binning = bin_positions(lattice, (r, s), valid)
-    out = bin_frames(da.from_array(frames, chunks=(2, 2, 3)), binning).compute()
+    out = bin_frames(da.from_array(frames), binning, block_frames=2, tile=(1, 2)).compute()
     expected = np.full((2, 3, 4, 2), np.nan, np.float32)
     expected[..., 0, 0] = (frames[0] + frames[1]) / 2
     expected[..., 3, 1] = frames[2]
@@ -35,13 +35,13 @@ def test_upper_plane_edge_belongs_to_last_cell():
 @settings(max_examples=60, deadline=None)
 @given(st.integers(1, 9), st.integers(1, 9), st.integers(1, 40), st.integers(1, 7),
        st.integers(0, 2**31 - 1))
-def test_binning_matches_a_loop_for_any_chunking(nr, ns, nt, chunk, seed):
+def test_binning_matches_a_loop_for_any_block_size(nr, ns, nt, chunk, seed):
     rng = np.random.default_rng(seed)
     lattice = Lattice.from_plane(PLANE, (nr, ns))
     r, s = rng.uniform(-0.5, 4.5, nt), rng.uniform(-0.5, 2.5, nt)
     frames = rng.random((nt, 2, 2)).astype(np.float32)
     binning = bin_positions(lattice, (r, s))
-    out = bin_frames(da.from_array(frames, chunks=(chunk, 2, 2)), binning).compute()
+    out = bin_frames(da.from_array(frames), binning, block_frames=chunk, tile=(2, 1)).compute()
     sums, counts = np.zeros((2, 2, nr * ns)), np.zeros(nr * ns)
     for f, c in zip(frames, binning.cell, strict=True):
         if c >= 0:

@@ -79,6 +79,8 @@ class SingularValueThresholding:
                  delta: float | None = None, increment: int = 5) -> None:
         self.mask = np.asarray(mask, dtype=bool)
         self.data = np.where(self.mask, data, 0.0)
+        # rows and columns with no observation are zero in exact arithmetic: keep them so
+        self.support = self.mask.any(axis=2, keepdims=True) & self.mask.any(axis=1, keepdims=True)
         size = self.mask[0].size
         observed = np.maximum(self.mask.sum(axis=(1, 2)), 1)[:, None, None]
         self.data_norm = _norms(self.data)
@@ -118,7 +120,7 @@ class SingularValueThresholding:
 
     def step(self) -> None:
         """One shrinkage and one dual step."""
-        self.estimate = self.shrink()
+        self.estimate = self.shrink() * self.support
         misfit = np.where(self.mask, self.data - self.estimate, 0.0)
         relative = _norms(misfit) / np.maximum(self.data_norm, 1e-300)
         self.residual = float(relative.max())

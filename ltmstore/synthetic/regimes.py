@@ -223,3 +223,30 @@ def lossy_regime(folder: str | os.PathLike, *, size: int = 24, lattice: tuple[in
     return Regime(name="lossy", samples=samples.reshape(-1, *grid.shape),
                   truth=truth.reshape(-1, *grid.shape).astype(np.float32),
                   geometry=Geometry(lattice=grid, height=PLANE.height), image=truth.shape[:2])
+
+
+def observed_scale(samples: np.ndarray) -> np.ndarray:
+    """Per-pixel scale of the observations, ``(n,)``: ``max(max - min, max |b|)``.
+
+    The observed range alone degenerates when the few observed cells are nearly equal (a very
+    short path through a dim region): the truth can then peak many ranges away.
+    """
+    flat = np.asarray(samples, dtype=np.float64).reshape(len(samples), -1)
+    observed = np.isfinite(flat)
+    hi = np.where(observed, flat, -np.inf).max(axis=1)
+    lo = np.where(observed, flat, np.inf).min(axis=1)
+    peak = np.where(observed, np.abs(flat), 0.0).max(axis=1)
+    return np.where(observed.any(axis=1), np.maximum(hi - lo, peak), np.nan)
+
+
+def overshoot(samples: np.ndarray, estimate: np.ndarray) -> np.ndarray:
+    """How far each pixel's estimate leaves its observed ``[min, max]``, in units of
+    :func:`observed_scale`, ``(n,)`` (0 inside; NaN for a pixel with no observation)."""
+    flat = np.asarray(samples, dtype=np.float64).reshape(len(samples), -1)
+    est = np.asarray(estimate, dtype=np.float64).reshape(len(samples), -1)
+    observed = np.isfinite(flat)
+    hi = np.where(observed, flat, -np.inf).max(axis=1)
+    lo = np.where(observed, flat, np.inf).min(axis=1)
+    over = np.maximum(np.maximum(lo - est.min(axis=1), est.max(axis=1) - hi), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return over / np.where(observed_scale(samples) > 0, observed_scale(samples), 1.0)

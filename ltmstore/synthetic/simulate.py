@@ -111,7 +111,8 @@ def _lattice(plane: Plane, delta_rs: float | None, shape: tuple[int, int]) -> La
 def simulate_acquisition(out: str | os.PathLike, *, scene: str = "canvas",
                          path_density: float = DEFAULT_PATH_DENSITY, seed: int = 0,
                          lossy: bool = False, size: int = 128, delta_rs: float | None = None,
-                         lattice: tuple[int, int] = (32, 32), overwrite: bool = False,
+                         lattice: tuple[int, int] = (32, 32), plane: Plane = PLANE,
+                         truth: bool = True, overwrite: bool = False,
                          progress: bool = True) -> dict:
     """Simulate a handheld acquisition of a synthetic painting, with its ground truth.
 
@@ -131,6 +132,11 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str = "canvas",
         Ground-truth lattice cell size; overrides ``lattice``.
     lattice : (int, int)
         Ground-truth lattice ``(R, S)`` over the plane.
+    plane : Plane
+        The illumination plane (default: a 40 cm square 30 cm above the object).
+    truth : bool
+        Write ``truth.zarr``. Without it (large benchmarks) the exposure comes from a lattice
+        of a quarter the resolution, and the LTM is never held in memory.
     overwrite : bool
         Replace the outputs of an earlier simulation in ``out``.
     progress : bool
@@ -151,22 +157,27 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str = "canvas",
         empty (without ``overwrite``) or cannot be written.
     """
     plan = plan_simulation(scene=scene, path_density=path_density, seed=seed, size=size,
-                           delta_rs=delta_rs, lattice=lattice)
+                           delta_rs=delta_rs, lattice=lattice, plane=plane)
     folder = _prepare_folder(Path(out), overwrite=overwrite)
     try:
-        return _execute(plan, folder, lossy=lossy, progress=progress)
+        return _execute(plan, folder, lossy=lossy, truth=truth, progress=progress)
     except OSError as exc:
         raise LtmError(f"cannot write simulation into {str(folder)!r}: {exc.strerror or exc}") \
             from exc
 
 
-def _execute(plan: SimulationPlan, folder: Path, *, lossy: bool, progress: bool) -> dict:
-    truth = render_ltm(plan.scene, plan.lattice, plan.plane.height, progress=progress)
-    exposure = EXPOSURE_PEAK / float(truth.max())
-    truth *= np.float32(exposure)
+def _execute(plan: SimulationPlan, folder: Path, *, lossy: bool, truth: bool,
+             progress: bool) -> dict:
     km = sampling_ratio(*plan.frame_lights()[:, :2].T, plan.lattice)
-    write_truth(folder / "truth.zarr", plan, truth, exposure=exposure, sampling_ratio=km)
-    del truth
+    if truth:
+        ltm = render_ltm(plan.scene, plan.lattice, plan.plane.height, progress=progress)
+        exposure = EXPOSURE_PEAK / float(ltm.max())
+        ltm *= np.float32(exposure)
+        write_truth(folder / "truth.zarr", plan, ltm, exposure=exposure, sampling_ratio=km)
+        del ltm
+    else:
+        coarse = Lattice.from_plane(plan.plane, [max(1, n // 4) for n in plan.lattice.shape])
+        exposure = EXPOSURE_PEAK / float(render_ltm(plan.scene, coarse, plan.plane.height).max())
     video = folder / writer.video_name(lossy)
     frames = tqdm(video_frames(plan, exposure=exposure), total=plan.frame_count,
                   disable=not progress, desc="video", unit="frame")
@@ -177,7 +188,9 @@ def _execute(plan: SimulationPlan, folder: Path, *, lossy: bool, progress: bool)
     writer.write_acquisition_json(folder, video=video.name, plane=plan.plane, transfer="srgb",
                                   extra={"simulation": info})
     paths = {"folder": folder, "acquisition": folder / "acquisition.json", "video": video,
-             "poses": folder / "poses.csv", "truth": folder / "truth.zarr"}
+             "poses": folder / "poses.csv"}
+    if truth:
+        paths["truth"] = folder / "truth.zarr"
     return {**info, "frames": n, "duration_s": n / writer.FPS,
             "paths": {k: str(v) for k, v in paths.items()}}
 
