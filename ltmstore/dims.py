@@ -35,6 +35,7 @@ SAMPLES = "samples"  # (y, x, r, s[, p, q]) binned means, NaN where unobserved
 COUNT = "count"  # (r, s[, p, q]) number of frames per cell
 LTM = "ltm"  # (y, x, r, s[, p, q]) float32 linear luminance
 CHROMA = "chroma"  # (y, x, channel) chroma as a ratio to luminance (illumination invariant)
+CHROMA_SPREAD = "chroma_spread"  # (y, x, channel) how much that ratio varies with the light
 LTM_RGB = "ltm_rgb"  # (y, x, r, s, color) ground truth colour LTM (simulations only)
 
 # BT.601 luma weights; chroma scales so that R = Y + 1.402 Cr, B = Y + 1.772 Cb.

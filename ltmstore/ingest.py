@@ -36,6 +36,7 @@ from ltmstore.dims import (
     CHANNEL,
     CHROMA,
     CHROMA_CHANNELS,
+    CHROMA_SPREAD,
     FRAMES,
     PIXEL_DIMS,
     POSES,
@@ -56,6 +57,7 @@ DEFAULT_CHUNK_FRAMES = 32
 SPATIAL_CHUNK = 256
 MIN_VALID_FRAMES = 8
 Z_TOLERANCE_FRACTION = 0.05
+CHROMA_TOLERANCE = 0.1  # measured: relief 0.043, canvas 0.075 (white gloss), icon 0.13 (gold)
 # A video whose decoded frame count falls short of its header's by more than this is truncated.
 TRUNCATION_SLACK = (2, 0.02)  # frames, fraction of the declared count
 
@@ -141,6 +143,20 @@ def lights_at(t: np.ndarray, poses: Poses, *, plane: Plane, z_tolerance: float,
                            z_tolerance=z_tolerance, view=view, view_plane=view_plane)
 
 
+def chroma_decision(spread: np.ndarray, luma: np.ndarray) -> dict:
+    """Is chroma illumination-invariant enough for a luminance-only LTM?
+
+    ``spread`` is the per-pixel standard deviation of ``Cb/Y`` and ``Cr/Y`` over the frames
+    (``(2, H, W)``), ``luma`` the per-pixel sum of luminance. Their luminance-weighted mean, the
+    scene's chroma variation, above :data:`CHROMA_TOLERANCE` means the colour changes with the
+    light (coloured highlights: gold leaf, metal) and a colour LTM is needed.
+    """
+    weight = luma / max(float(luma.sum()), 1e-30)
+    variation = float((np.hypot(*spread) * weight).sum())
+    return {"variation": variation, "tolerance": CHROMA_TOLERANCE,
+            "invariant": variation <= CHROMA_TOLERANCE}
+
+
 class FrameSink:
     """Stream 8-bit RGB frames into a store group as linear luminance, accumulating chroma.
 
@@ -164,7 +180,8 @@ class FrameSink:
         self._chunk_frames = _positive_int(chunk_frames, "chunk_frames")
         self._frames: zarr.Array | None = None
         self._buffer = np.empty((0, 0, 0), dtype=np.float32)
-        self._sums = np.zeros((3, 0, 0))
+        self._sums = np.zeros((3, 0, 0))  # sum over valid frames of Y, Cb, Cr
+        self._squares = np.zeros((2, 0, 0))  # sum of Cb^2 / Y, Cr^2 / Y (chroma variance)
         self._pending = 0
         self.n = 0
 
@@ -183,14 +200,21 @@ class FrameSink:
         ycc = rgb_to_ycbcr(self._lut[rgb8])
         self._buffer[self._pending] = ycc[..., 0]
         if valid:
-            self._sums += np.moveaxis(ycc, -1, 0)
+            ycc = np.moveaxis(ycc, -1, 0)
+            self._sums += ycc
+            np.divide(ycc[1:] ** 2, ycc[0], out=ycc[1:], where=ycc[0] > 0)
+            ycc[1:][:, ycc[0] <= 0] = 0
+            self._squares += ycc[1:]
         self._pending += 1
         self.n += 1
         if self._pending == self._chunk_frames:
             self._flush()
 
-    def finish(self, t: np.ndarray) -> None:
-        """Write the last block, the ``t``, ``y``, ``x``, ``channel`` coordinates and chroma."""
+    def finish(self, t: np.ndarray) -> dict:
+        """Write the last block, the ``t``, ``y``, ``x``, ``channel`` coordinates and chroma.
+
+        Returns the chroma decision (:func:`chroma_decision`).
+        """
         self._flush()
         if len(t) != self.n:
             raise ValueError(f"{len(t)} times for {self.n} frames")
@@ -206,9 +230,19 @@ class FrameSink:
                                   "long_name": "chroma as a ratio to luminance (Cb/Y, Cr/Y), "
                                                "luminance-weighted over valid frames"})
         arr[...] = np.moveaxis(ratio, 0, -1).astype(np.float32)
+        spread = np.sqrt(np.maximum(
+            np.divide(self._squares, luma, out=np.zeros_like(chroma), where=luma > 0)
+            - ratio**2, 0))
+        arr = create_variable(self._group, CHROMA_SPREAD, (*PIXEL_DIMS, CHANNEL),
+                              (height, width, 2), chunks=(*self._spatial_chunks(), 2), attrs={
+                                  "long_name": "luminance-weighted standard deviation of the "
+                                               "chroma ratios over valid frames"})
+        arr[...] = np.moveaxis(spread, 0, -1).astype(np.float32)
+        return chroma_decision(spread, luma)
 
     def _start(self, shape: tuple[int, int]) -> None:
         self._sums = np.zeros((3, *shape))
+        self._squares = np.zeros((2, *shape))
         self._buffer = np.empty((self._chunk_frames, *shape), dtype=np.float32)
         self._frames = create_variable(
             self._group, FRAMES, (T, *PIXEL_DIMS), (0, *shape),
@@ -247,10 +281,11 @@ def finish_ingest(group: zarr.Group, sink: FrameSink, t: np.ndarray, lights: Lig
     if n_valid < MIN_VALID_FRAMES:
         raise LtmError(f"only {n_valid} of {sink.n} frames are valid (rejected: "
                        f"{lights.rejected()}); expected at least {MIN_VALID_FRAMES}")
-    sink.finish(t)
+    chroma = sink.finish(t)
     write_lights(group, lights)
     group.attrs[ACQUISITION_ATTR] = acquisition
-    record = {"n_frames": sink.n, "n_valid": n_valid, "rejected": lights.rejected(), **info,
+    record = {"n_frames": sink.n, "n_valid": n_valid, "rejected": lights.rejected(),
+              "chroma": chroma, **info,
               "seconds": round(time.perf_counter() - started, 3)}
     complete_stage(group, STAGE, record)
     return record

@@ -27,7 +27,7 @@ STAGES_ATTR = "stages"
 # Which variables each stage writes (to hide the output of stages that did not complete).
 STAGE_VARIABLES = {
     "ingest": ("frames", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q", "pose_valid",
-               "chroma"),
+               "chroma", "chroma_spread"),
     "resample": ("samples", "count"),
     "reconstruct": ("ltm",),
 }

@@ -27,7 +27,13 @@ from ingest_helpers import (
 )
 
 from ltmstore.errors import LtmError
-from ltmstore.ingest import Z_TOLERANCE_FRACTION, FrameSink, ingest, transfer_lut
+from ltmstore.ingest import (
+    Z_TOLERANCE_FRACTION,
+    FrameSink,
+    chroma_decision,
+    ingest,
+    transfer_lut,
+)
 from ltmstore.store import open_group, open_store, stages
 
 CHUNK = 16  # does not divide N: the last block is partial
@@ -145,6 +151,21 @@ def test_rejections(ingested, ds):
 
 def test_chroma_ratio(ds):
     np.testing.assert_allclose(ds.chroma.values, expected_chroma(), atol=0.01)
+
+
+def test_constant_colour_is_illumination_invariant(ds, ingested):
+    assert ds.chroma_spread.values.max() < 0.02
+    decision = ingested[1]["chroma"]
+    assert decision["invariant"] and decision["variation"] < 0.02
+
+
+def test_chroma_that_changes_with_the_light_needs_a_colour_ltm():
+    rng = np.random.default_rng(0)
+    luma = rng.uniform(1, 2, (4, 4))
+    assert chroma_decision(np.zeros((2, 4, 4)), luma)["invariant"]
+    decision = chroma_decision(np.full((2, 4, 4), 0.2), luma)
+    assert not decision["invariant"]
+    assert decision["variation"] == pytest.approx(np.hypot(0.2, 0.2))
 
 
 def test_provenance(acq_dir, ingested):

@@ -68,9 +68,12 @@ class SingularValueThresholding:
     mask : ndarray of bool
         Observed entries ``Omega``.
     tau : float or None
-        Threshold; default ``5 sqrt(a b)`` times the RMS of the observed entries of each matrix.
+        Threshold; default ``5 sqrt(a' b')`` times the RMS of the observed entries of each matrix,
+        where ``a' x b'`` counts the rows and columns that hold any observation.
     delta : float or None
-        Step; default ``1.2 a b / |Omega|`` of each matrix.
+        Step; default ``1.2 a' b' / |Omega|`` of each matrix (the paper's ``1.2 / p``, with the
+        sampling ratio ``p`` taken over the rows and columns that hold data: a fully observed
+        block then gets ``1.2``, inside the convergence range ``(0, 2)``).
     increment : int
         How many more singular values to ask for when the predicted rank was too small.
     """
@@ -81,7 +84,7 @@ class SingularValueThresholding:
         self.data = np.where(self.mask, data, 0.0)
         # rows and columns with no observation are zero in exact arithmetic: keep them so
         self.support = self.mask.any(axis=2, keepdims=True) & self.mask.any(axis=1, keepdims=True)
-        size = self.mask[0].size
+        size = self.support.sum(axis=(1, 2), keepdims=True)  # rows x columns that hold data
         observed = np.maximum(self.mask.sum(axis=(1, 2)), 1)[:, None, None]
         self.data_norm = _norms(self.data)
         rms = self.data_norm / np.sqrt(observed)

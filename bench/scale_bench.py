@@ -1,0 +1,128 @@
+"""Scale benchmark: large images and lattices reconstructed out of core on 2 workers.
+
+Run: ``python bench/scale_bench.py --config toys`` (about 160k pixels on a 50 x 50 lattice, the
+pixel count of the paper's 320 x 512 Toys scene) or ``--config notre-dame`` (1024 x 1024 pixels
+on a 32 x 80 lattice: a 10.7 GB float32 LTM, the paper's Notre Dame-b size). Writes
+``scale_<config>.json``: stage times, peak memory of the whole process tree (main process and
+Dask workers, sampled every 0.2 s), and the cost of relighting one point light.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+from zarr.storage import LocalStore
+
+from ltmstore import __version__, relight
+from ltmstore.dims import Plane
+from ltmstore.ingest import ingest
+from ltmstore.reconstruct import reconstruct
+from ltmstore.store import CountingStore, open_store
+from ltmstore.synthetic.simulate import simulate_acquisition
+
+CONFIGS = {
+    # 400 x 400 = 160,000 pixels (Toys: 320 x 512 = 163,840), 8 mm cells over a 40 cm square.
+    "toys": {"size": 400, "plane": Plane(r=(-0.2, 0.2), s=(-0.2, 0.2), height=0.3),
+             "lattice": (50, 50), "path_density": 42.0},
+    # 1024 x 1024 pixels, 12.5 mm cells over a 40 cm x 1 m plane: 32 x 80 cells.
+    "notre-dame": {"size": 1024, "plane": Plane(r=(-0.2, 0.2), s=(-0.5, 0.5), height=0.3),
+                   "lattice": (32, 80), "path_density": 27.0},
+}
+
+
+class PeakMemory:
+    """Peak resident memory of this process and all its children, sampled in a thread."""
+
+    def __init__(self, interval: float = 0.2) -> None:
+        self.interval, self.peak, self._stop = interval, 0, threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        me = psutil.Process()
+        while not self._stop.is_set():
+            total = 0
+            for proc in [me, *me.children(recursive=True)]:
+                try:
+                    total += proc.memory_info().rss
+                except psutil.Error:
+                    pass
+            self.peak = max(self.peak, total)
+            time.sleep(self.interval)
+
+    def __enter__(self) -> PeakMemory:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def relight_cost(store: Path, plane: Plane, repeats: int = 5) -> dict:
+    rng = np.random.default_rng(0)
+    seconds, nbytes = [], []
+    for _ in range(repeats):
+        light = (rng.uniform(*plane.r), rng.uniform(*plane.s))
+        counting = CountingStore(LocalStore(str(store), read_only=True))
+        start = time.perf_counter()
+        relight(open_store(counting), [light], color=False).compute()
+        seconds.append(time.perf_counter() - start)
+        nbytes.append(counting.bytes_read)
+    return {"seconds_median": statistics.median(seconds), "bytes_read_median":
+            statistics.median(nbytes), "repeats": repeats}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--config", choices=sorted(CONFIGS), default="toys")
+    parser.add_argument("--work", default="/tmp/ltm-scale", help="scratch folder (large)")
+    parser.add_argument("--out", default="bench/results")
+    args = parser.parse_args()
+    cfg = CONFIGS[args.config]
+    work = Path(args.work) / args.config
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True)
+    times = {}
+    start = time.perf_counter()
+    sim = simulate_acquisition(work / "acq", scene="canvas", size=cfg["size"], seed=0,
+                               lattice=cfg["lattice"], plane=cfg["plane"],
+                               path_density=cfg["path_density"], truth=False, progress=True)
+    times["simulate_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    ingest(work / "acq", work / "store.zarr", progress=True)
+    times["ingest_s"] = time.perf_counter() - start
+    with PeakMemory() as memory:
+        start = time.perf_counter()
+        info = reconstruct(work / "store.zarr", lattice=cfg["lattice"], progress=True)
+        times["reconstruct_s"] = time.perf_counter() - start
+    ltm = open_store(work / "store.zarr")["ltm"]
+    result = {
+        "config": args.config, "command": f"python bench/scale_bench.py --config {args.config}",
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                    "memory_gib": psutil.virtual_memory().total / 2**30},
+        "ltmstore": __version__, "pixels": cfg["size"] ** 2, "lattice": list(cfg["lattice"]),
+        "frames": sim["frames"], "sampling_ratio": info["sampling_ratio"],
+        "ltm_gb_float32": ltm.nbytes / 1e9, "timings": {**times, **info["timings"]},
+        "seconds_per_pixel_solve": info["seconds_per_pixel"],
+        "peak_memory_gib_reconstruct": memory.peak / 2**30,
+        "relight_point_light": relight_cost(work / "store.zarr", cfg["plane"]),
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"scale_{args.config}.json").write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+    shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
