@@ -29,7 +29,8 @@ TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at
 
 @dataclass(frozen=True)
 class TilePlan:
-    """Pixel tiles (= ``ltm`` shards) and lattice chunks (inner chunks) of the store."""
+    """Pixel tiles (the unit of work, one ``ltm`` shard each) and the lattice chunks (inner
+    chunks) of the store."""
 
     image: tuple[int, int]
     lattice: tuple[int, ...]
@@ -37,8 +38,15 @@ class TilePlan:
     lattice_chunk: tuple[int, ...]
 
     @property
-    def shards(self) -> tuple[int, ...]:
+    def block(self) -> tuple[int, ...]:
+        """One tile of whole LTFs: the Dask chunk of ``samples`` and ``ltm``."""
         return (*self.tile, *self.lattice)
+
+    @property
+    def shards(self) -> tuple[int, ...]:
+        """The block, rounded up along the lattice to whole inner chunks (Zarr requires it)."""
+        return (*self.tile, *(-(-n // c) * c for n, c in
+                              zip(self.lattice, self.lattice_chunk, strict=True)))
 
     @property
     def chunks(self) -> tuple[int, ...]:
@@ -102,8 +110,8 @@ def _write_samples(group: zarr.Group, frames: da.Array, binning: Binning,
                                dtype=np.int32, fill_value=0)
     count[...] = binning.count
     samples = st.create_variable(group, SAMPLES, ("y", "x", *lattice.dims),
-                                 (*plan.image, *lattice.shape), chunks=plan.shards)
-    binned = bin_frames(frames, binning, tile=plan.tile).rechunk(plan.shards)
+                                 (*plan.image, *lattice.shape), chunks=plan.block)
+    binned = bin_frames(frames, binning, tile=plan.tile).rechunk(plan.block)
     client.compute(da.store(binned, samples, lock=False, compute=False)).result()
     return samples
 
@@ -201,7 +209,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
 def _solve_tiles(samples: zarr.Array, out: zarr.Array, plan: TilePlan, geometry: Geometry,
                  method: str, params: dict, client: Client, progress: bool) -> list[float]:
     """Run one Dask task per pixel tile; return each tile's solve time."""
-    tiles = da.from_zarr(samples, chunks=plan.shards)
+    tiles = da.from_zarr(samples, chunks=plan.block)
     seconds = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
                                geometry=geometry, drop_axis=list(range(2, tiles.ndim)),
                                chunks=(1, 1), dtype=float)

@@ -104,3 +104,11 @@ def test_lars_and_cs_agree_on_the_simulated_scene(flow_run, small_acquisition):
     snr = {name: snr_db(truth, get_method(name)(batch, geometry).reshape(samples.shape))
            for name in ("cs", "lars")}
     assert snr["cs"] > snr["lars"] - 0.5, snr
+
+
+def test_plan_pads_shards_to_whole_inner_chunks():
+    from ltmstore.reconstruct import plan_tiles
+
+    plan = plan_tiles((100, 70), (50, 50), tile=32, chunk_bytes=32 * 32 * 4 * 16)
+    assert plan.chunks == (32, 32, 4, 4) and plan.shards == (32, 32, 52, 52)
+    assert plan.block == (32, 32, 50, 50) and plan.n_tiles == 4 * 3
