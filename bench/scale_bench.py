@@ -33,7 +33,7 @@ from ltmstore.synthetic.simulate import simulate_acquisition
 CONFIGS = {
     # 400 x 400 = 160,000 pixels (Toys: 320 x 512 = 163,840), 8 mm cells over a 40 cm square.
     "toys": {"size": 400, "plane": Plane(r=(-0.2, 0.2), s=(-0.2, 0.2), height=0.3),
-             "lattice": (50, 50), "path_density": 42.0},
+             "lattice": (50, 50), "path_density": 53.0},
     # 1024 x 1024 pixels, 12.5 mm cells over a 40 cm x 1 m plane: 32 x 80 cells.
     "notre-dame": {"size": 1024, "plane": Plane(r=(-0.2, 0.2), s=(-0.5, 0.5), height=0.3),
                    "lattice": (32, 80), "path_density": 27.0},

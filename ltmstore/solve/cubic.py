@@ -37,7 +37,7 @@ def interpolate(points: np.ndarray, sources: np.ndarray, values: np.ndarray) -> 
 
     try:
         out = CloughTocher2DInterpolator(sources, values, fill_value=np.nan)(points)
-    except (QhullError, ValueError):  # < 3 points or collinear: no triangulation
+    except QhullError:  # fewer than 3 points, or collinear: no triangulation
         out = np.full((len(points), values.shape[1]), np.nan)
     out = out.reshape(len(points), values.shape[1])
     outside = np.isnan(out).any(axis=1)

@@ -10,16 +10,19 @@ all pixels of the group as one matrix product. Any number of lattice dimensions.
 
 Where it fails: it smooths rather than interpolates, so shadow edges and highlights narrower than
 the bandwidth are blurred or ringed (the paper's Fig. 11), and far from any observed cell (gaps of
-a sparse trajectory wider than a few bandwidths) the local fit degenerates. There the order-2 and
-order-1 fits fall back to order 0 (Nadaraya-Watson, i.e. close to nearest neighbour), whose
-weights are normalised relative to the nearest observed cell so that they never underflow.
-Memory is ``O(M K P)`` per mask (``P`` polynomial terms): fine for ``(r, s)`` lattices, not for
-large 6-D ones.
+a sparse trajectory wider than a few bandwidths) a local polynomial becomes an extrapolation from
+a one-sided cluster that overshoots. The fit drops order (2 to 1 to 0) where its normal matrix
+is ill-conditioned (``rcond``), which tames the worst of it but not all: near the crossing of two
+trajectory strokes a well-conditioned quadratic can still overshoot the data range. Order 0
+(Nadaraya-Watson, close to nearest neighbour in gaps) has weights normalised to the nearest
+observed cell so that they never underflow. Memory is ``O(M K P)`` per mask (``P`` polynomial
+terms): fine for ``(r, s)`` lattices, not for large 6-D ones.
 """
 
 from __future__ import annotations
 
 from itertools import combinations_with_replacement
+from math import comb
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -41,7 +44,7 @@ def design(u: np.ndarray, order: int) -> np.ndarray:
 
 
 def equivalent_kernel(points: np.ndarray, sources: np.ndarray, *, order: int = 2,
-                      bandwidth: float = 1.5, rcond: float = 1e-10) -> np.ndarray:
+                      bandwidth: float = 1.5, rcond: float = 1e-3) -> np.ndarray:
     """The matrix ``W (M, K)`` with ``estimate(points) = W @ values(sources)``.
 
     Parameters
@@ -53,33 +56,43 @@ def equivalent_kernel(points: np.ndarray, sources: np.ndarray, *, order: int = 2
     bandwidth : float
         Standard deviation ``h`` of the Gaussian kernel.
     rcond : float
-        Local fits whose (Jacobi-scaled) normal matrix has a smaller eigenvalue ratio fall back to
-        order 0.
+        A local fit whose Jacobi-scaled normal matrix has a smaller eigenvalue ratio (too few
+        or too one-sided observed cells: an extrapolation) drops to the next lower order.
     """
     offsets = (sources[None, :, :] - points[:, None, :]) / bandwidth  # (M, K, d)
     d2 = np.einsum("mkd,mkd->mk", offsets, offsets)
     weights = np.exp(-0.5 * (d2 - d2.min(axis=1, keepdims=True)))  # nearest source: weight 1
-    nadaraya = weights / weights.sum(axis=1, keepdims=True)
+    kernel = weights / weights.sum(axis=1, keepdims=True)  # order 0: Nadaraya-Watson
     if order == 0:
-        return nadaraya
-    phi = design(offsets, order)  # (M, K, P)
+        return kernel
+    phi = design(offsets, order)  # (M, K, P), terms sorted by degree
     weighted = phi * weights[..., None]
     normal = np.matmul(weighted.transpose(0, 2, 1), phi)  # (M, P, P)
-    scale = 1 / np.sqrt(np.maximum(np.einsum("mpp->mp", normal), 1e-300))
-    scaled = normal * scale[:, :, None] * scale[:, None, :]
-    eig = np.linalg.eigvalsh(scaled)
-    ok = eig[:, 0] > rcond * eig[:, -1]
-    kernel = nadaraya
-    if ok.any():
-        e1 = np.zeros((int(ok.sum()), normal.shape[1], 1))
-        e1[:, 0] = 1
-        z = np.linalg.solve(normal[ok], e1)[..., 0]  # first row of the inverse normal matrix
-        kernel[ok] = np.einsum("mp,mkp->mk", z, weighted[ok])
+    pending = np.ones(len(points), dtype=bool)
+    for degree in range(order, 0, -1):
+        terms = comb(degree + sources.shape[1], degree)  # leading block: terms up to degree
+        rows = np.flatnonzero(pending)
+        ok = _well_conditioned(normal[rows, :terms, :terms], rcond)
+        rows = rows[ok]
+        if len(rows):
+            e1 = np.zeros((len(rows), terms, 1))
+            e1[:, 0] = 1
+            z = np.linalg.solve(normal[rows, :terms, :terms], e1)[..., 0]  # first row of inverse
+            kernel[rows] = np.einsum("mp,mkp->mk", z, weighted[rows, :, :terms])
+            pending[rows] = False
     return kernel
 
 
+def _well_conditioned(normal: np.ndarray, rcond: float) -> np.ndarray:
+    """Which symmetric matrices of a stack ``(m, P, P)`` have ``min eig > rcond max eig``
+    after Jacobi scaling."""
+    scale = 1 / np.sqrt(np.maximum(np.einsum("mpp->mp", normal), 1e-300))
+    eig = np.linalg.eigvalsh(normal * scale[:, :, None] * scale[:, None, :])
+    return eig[:, 0] > rcond * eig[:, -1]
+
+
 def solve(samples: np.ndarray, geometry: Geometry, *, order: int = 2, bandwidth: float = 1.5,
-          rcond: float = 1e-10) -> np.ndarray:
+          rcond: float = 1e-3) -> np.ndarray:
     """Kernel regression of every LTF of a batch ``(n, *lattice)`` (NaN = unobserved).
 
     Parameters

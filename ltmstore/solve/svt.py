@@ -21,6 +21,8 @@ is a column with no entry at all, which no completion can recover: those cells c
 completes each LTF as its own ``R x S`` matrix (low rank over the lattice, one batched dense SVD of
 all pixels per iteration), which works with a shared mask as long as every lattice row and column
 holds an observed cell, but smooth-yet-not-separable LTFs (a round highlight) are not low rank.
+On data that is not low rank, SVT with a large ``tau`` converges slowly: it may stop at
+``max_iter`` with the observed cells fitted only to a few percent.
 """
 
 from __future__ import annotations
@@ -33,6 +35,10 @@ from ltmstore.errors import LtmError
 
 if TYPE_CHECKING:
     from ltmstore.solve import Geometry
+
+
+#: Cap of the default step: the convergence guarantee holds for steps in (0, 2).
+MAX_DEFAULT_STEP = 1.9
 
 
 def top_svd(matrix: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -71,9 +77,10 @@ class SingularValueThresholding:
         Threshold; default ``5 sqrt(a' b')`` times the RMS of the observed entries of each matrix,
         where ``a' x b'`` counts the rows and columns that hold any observation.
     delta : float or None
-        Step; default ``1.2 a' b' / |Omega|`` of each matrix (the paper's ``1.2 / p``, with the
-        sampling ratio ``p`` taken over the rows and columns that hold data: a fully observed
-        block then gets ``1.2``, inside the convergence range ``(0, 2)``).
+        Step; default ``min(1.2 / p, 1.9)`` with ``p = |Omega| / (a' b')`` for each matrix. The
+        paper's ``1.2 / p`` suits uniformly random entries; on trajectory masks it oscillates
+        without converging, while any step in ``(0, 2)`` provably converges (the paper's
+        convergence theorem).
     increment : int
         How many more singular values to ask for when the predicted rank was too small.
     """
@@ -89,7 +96,8 @@ class SingularValueThresholding:
         self.data_norm = _norms(self.data)
         rms = self.data_norm / np.sqrt(observed)
         self.tau = 5 * np.sqrt(size) * rms if tau is None else np.full_like(rms, tau)
-        self.delta = 1.2 * size / observed if delta is None else np.full_like(rms, delta)
+        self.delta = (np.minimum(1.2 * size / observed, MAX_DEFAULT_STEP) if delta is None
+                      else np.full_like(rms, delta))
         self.increment = max(int(increment), 1)
         spectral = np.array([top_svd(m, 1)[1][0] for m in self.data])[:, None, None]
         kick = np.ceil(self.tau / np.maximum(self.delta * spectral, 1e-300))
@@ -130,7 +138,7 @@ class SingularValueThresholding:
         self.dual += self.delta * misfit
         self.iteration += 1
 
-    def run(self, *, max_iter: int = 300, tol: float = 1e-4) -> np.ndarray:
+    def run(self, *, max_iter: int = 500, tol: float = 1e-4) -> np.ndarray:
         """Iterate until every relative residual on ``Omega`` is below ``tol``, or ``max_iter``."""
         while self.iteration < max_iter and self.residual > tol:
             self.step()
@@ -155,7 +163,7 @@ def as_matrices(samples: np.ndarray, layout: str) -> np.ndarray:
 
 
 def solve(samples: np.ndarray, geometry: Geometry, *, tau: float | None = None,
-          delta: float | None = None, max_iter: int = 300, tol: float = 1e-4,
+          delta: float | None = None, max_iter: int = 500, tol: float = 1e-4,
           layout: str = "tile") -> np.ndarray:
     """Complete a batch ``(n, *lattice)`` (NaN = unobserved) by SVT.
 

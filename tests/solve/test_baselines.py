@@ -173,6 +173,19 @@ def test_kernel_regression_of_order_zero_is_exact_on_a_constant():
     assert relative_error(truth, estimate) < 1e-6
 
 
+def test_kernel_regression_drops_order_where_the_fit_would_extrapolate():
+    """Observed along one line only: across it no slope is known, so every cell falls back to a
+    Nadaraya-Watson average, inside the range of the data."""
+    rng = np.random.default_rng(14)
+    truth = planes(4, rng) + rng.random((4, *LATTICE))
+    mask = np.zeros(LATTICE, bool)
+    mask[3] = True
+    estimate = get_method("kernel")(observe(truth, mask), GEOMETRY)
+    line = truth[:, 3]
+    assert np.all(estimate >= line.min(axis=1)[:, None, None] - 1e-6)
+    assert np.all(estimate <= line.max(axis=1)[:, None, None] + 1e-6)
+
+
 def test_kernel_regression_works_on_a_six_dimensional_lattice():
     rng = np.random.default_rng(9)
     geometry = Geometry.from_shape((5, 5, 3, 3))
