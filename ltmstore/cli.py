@@ -62,7 +62,8 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
 
     lattice = parse_lattice(a.lattice) if a.lattice else None
     info = reconstruct(a.store, scheduler=a.scheduler, lattice=lattice, delta_rs=a.delta_rs,
-                       method=a.method, tile=a.tile, overwrite=a.overwrite)
+                       method=a.method, auto=not a.no_auto, tile=a.tile,
+                       overwrite=a.overwrite)
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
           f"path density {info['path_density']:.1f}/unit  method {info['method']}  "
           f"resample {info['timings']['resample_s']:.1f} s  "
@@ -178,6 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS),
                    help="solver (default: %(default)s; lars is the slow per-pixel reference)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
+    p.add_argument("--no-auto", action="store_true",
+                   help="keep the method's default regularisation instead of choosing it per "
+                   "tile by held-out error")
     p.add_argument("--tile", type=int, default=32, help="pixel tile side (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="recompute an existing ltm")
     p.set_defaults(func=cmd_reconstruct)

@@ -8,6 +8,7 @@ solves, and writes its own shard, so a tile is the unit of progress and of failu
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import asdict, dataclass
 
@@ -19,10 +20,12 @@ from tqdm.auto import tqdm
 
 from ltmstore import store as st
 from ltmstore.cluster import dask_client
-from ltmstore.dims import COUNT, LTM, SAMPLES, Lattice, Plane
+from ltmstore.confidence import expected_error, flag_unsupported
+from ltmstore.dims import COUNT, EXPECTED_ERROR, LTM, SAMPLES, UNSUPPORTED, Lattice, Plane
 from ltmstore.errors import LtmError
 from ltmstore.resample import Binning, bin_frames, bin_positions, path_length
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
+from ltmstore.solve.select import Choice, choose_params
 
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
 
@@ -90,15 +93,28 @@ def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray
     return lattice  # the coarsest candidate
 
 
-def _solve_tile(samples: np.ndarray, *, out: zarr.Array, method: str, params: dict,
-                geometry: Geometry, block_info=None) -> np.ndarray:
-    """Solve one pixel tile, write it to its shard, return ``[[seconds]]``."""
+def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str, params: dict,
+                geometry: Geometry, auto: bool, block_info=None) -> np.ndarray:
+    """Solve one pixel tile and write its ``ltm`` shard and confidence maps.
+
+    Returns ``[[record]]``: seconds, the parameters used and the held-out errors behind them.
+    """
     start = time.perf_counter()
     (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
     batch = samples.reshape(-1, *samples.shape[2:])
-    estimate = get_method(method)(batch, geometry, **params)
-    out[y0:y1, x0:x1] = estimate.reshape(samples.shape)
-    return np.full((1, 1), time.perf_counter() - start)
+    choice = (choose_params(batch, geometry, method, params=params, seed=y0 * 65536 + x0)
+              if auto else Choice(params=params, errors={}))
+    estimate = get_method(method)(batch, geometry, **choice.params)
+    tile = samples.shape[:2]
+    out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
+    out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
+        batch, geometry, method, params=choice.params, folds=1).reshape(tile)
+    out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
+    record = {"seconds": time.perf_counter() - start, "params": choice.params,
+              "heldout": choice.errors}
+    result = np.empty((1, 1), dtype=object)
+    result[0, 0] = record
+    return result
 
 
 def _write_samples(group: zarr.Group, frames: da.Array, binning: Binning,
@@ -118,8 +134,8 @@ def _write_samples(group: zarr.Group, frames: da.Array, binning: Binning,
 
 def reconstruct(path, *, client: Client | None = None, scheduler: str | None = None,
                 lattice: tuple[int, int] | None = None, delta_rs: float | None = None,
-                method: str = DEFAULT_METHOD, params: dict | None = None, tile: int = 32,
-                overwrite: bool = False, progress: bool = True) -> dict:
+                method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
+                tile: int = 32, overwrite: bool = False, progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store, in place.
 
     Parameters
@@ -137,6 +153,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         A name from :data:`ltmstore.solve.METHODS`.
     params : dict, optional
         Keyword arguments of the method.
+    auto : bool
+        Choose the method's regularisation per tile by held-out error
+        (:mod:`ltmstore.solve.select`); parameters given in ``params`` stay fixed.
     tile : int
         Pixel tile side: the unit of work and the ``ltm`` shard.
     overwrite : bool
@@ -155,7 +174,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     if st.stages(group).get("reconstruct", {}).get("complete") and not overwrite:
         raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute it")
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
-               tile=tile, progress=progress)
+               auto=auto, tile=tile, progress=progress)
     if client is not None:
         return _reconstruct(group, client, **run)
     with dask_client(scheduler) as own:
@@ -171,7 +190,7 @@ def _pick_lattice(plane: Plane, r, s, valid, lattice, delta_rs) -> tuple[Lattice
 
 
 def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
-                 params: dict, tile: int, progress: bool) -> dict:
+                 params: dict, auto: bool, tile: int, progress: bool) -> dict:
     plane = Plane.from_json(group.attrs["acquisition"]["plane"])
     r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     timings = {}
@@ -194,29 +213,44 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     timings["resample_s"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    out = st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
-                             chunks=plan.chunks, shards=plan.shards)
+    out = {LTM: st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
+                                   chunks=plan.chunks, shards=plan.shards),
+           EXPECTED_ERROR: st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image,
+                                              chunks=plan.tile),
+           UNSUPPORTED: st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image,
+                                           chunks=plan.tile, dtype=bool, fill_value=True)}
     geometry = Geometry(lattice=lat, height=plane.height)
-    tile_seconds = _solve_tiles(samples, out, plan, geometry, method, params, client, progress)
+    records = _solve_tiles(samples, out, plan, geometry, method, params, auto, client, progress)
     timings["solve_s"] = time.perf_counter() - start
-    info = {**sampling, "method": method, "params": params, "plan": asdict(plan),
+    info = {**sampling, "method": method, "params": params, "auto": auto,
+            "chosen_per_tile": summarise_choices(records), "plan": asdict(plan),
             "timings": timings,
-            "seconds_per_pixel": sum(tile_seconds) / int(np.prod(plan.image))}
+            "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
     st.complete_stage(group, "reconstruct", info)
     return info
 
 
-def _solve_tiles(samples: zarr.Array, out: zarr.Array, plan: TilePlan, geometry: Geometry,
-                 method: str, params: dict, client: Client, progress: bool) -> list[float]:
-    """Run one Dask task per pixel tile; return each tile's solve time."""
+def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], plan: TilePlan,
+                 geometry: Geometry, method: str, params: dict, auto: bool, client: Client,
+                 progress: bool) -> list[dict]:
+    """Run one Dask task per pixel tile; return each tile's record."""
     tiles = da.from_zarr(samples, chunks=plan.block)
-    seconds = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
-                               geometry=geometry, drop_axis=list(range(2, tiles.ndim)),
-                               chunks=(1, 1), dtype=float)
-    futures = client.compute(list(seconds.to_delayed().ravel()))
-    tile_seconds = []
+    records = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
+                               geometry=geometry, auto=auto,
+                               drop_axis=list(range(2, tiles.ndim)), chunks=(1, 1), dtype=object)
+    futures = client.compute(list(records.to_delayed().ravel()))
+    done = []
     with tqdm(total=len(futures), desc="reconstruct tiles", disable=not progress) as bar:
         for fut in as_completed(futures):
-            tile_seconds.append(float(fut.result().item()))
+            done.append(fut.result().item())
             bar.update()
-    return tile_seconds
+    return done
+
+
+def summarise_choices(records: list[dict]) -> dict:
+    """How many tiles chose each parameter setting."""
+    counts: dict[str, int] = {}
+    for rec in records:
+        key = json.dumps(rec["params"], sort_keys=True)
+        counts[key] = counts.get(key, 0) + 1
+    return counts

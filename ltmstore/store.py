@@ -29,7 +29,7 @@ STAGE_VARIABLES = {
     "ingest": ("frames", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q", "pose_valid",
                "chroma", "chroma_spread"),
     "resample": ("samples", "count"),
-    "reconstruct": ("ltm",),
+    "reconstruct": ("ltm", "expected_error", "unsupported"),
 }
 
 

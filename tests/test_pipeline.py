@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
@@ -112,3 +113,14 @@ def test_plan_pads_shards_to_whole_inner_chunks():
     plan = plan_tiles((100, 70), (50, 50), tile=32, chunk_bytes=32 * 32 * 4 * 16)
     assert plan.chunks == (32, 32, 4, 4) and plan.shards == (32, 32, 52, 52)
     assert plan.block == (32, 32, 50, 50) and plan.n_tiles == 4 * 3
+
+
+def test_regularisation_and_confidence_are_chosen_and_stored(flow_run):
+    ds = open_store(flow_run[0])
+    rec = ds.attrs["stages"]["reconstruct"]
+    assert rec["auto"] and sum(rec["chosen_per_tile"].values()) == rec["plan"]["image"][0] // 32
+    chosen = {json.loads(k)["lam_min"] for k in rec["chosen_per_tile"]}
+    assert chosen <= {3e-3, 1e-3, 3e-4}
+    assert ds["unsupported"].dims == ("y", "x") and ds["unsupported"].dtype == bool
+    error = ds["expected_error"].values
+    assert np.isfinite(error).all() and 0 <= error.min() and np.median(error) < 0.5

@@ -29,6 +29,8 @@ if TYPE_CHECKING:
     from ltmstore.solve import Geometry
 
 N_ITER = 30  # with momentum: within 0.2 dB of 100 plain iterations on the simulated scenes
+# Candidates of the final threshold for the per-tile choice (ltmstore.solve.select).
+AUTO_GRID = {"lam_min": (3e-3, 1e-3, 3e-4)}
 
 
 class IterativeThresholding:

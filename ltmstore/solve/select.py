@@ -1,0 +1,58 @@
+"""Choose a method's regularisation per pixel tile by held-out error: no bigger model than needed.
+
+A method that can be tuned declares ``AUTO_GRID``, a mapping of one parameter to its candidate
+values (for ``cs`` the final threshold ``lam_min``: a larger one keeps fewer DCT coefficients, a
+sparser model). For each tile a small random subset of pixels is cross-validated (cells held out,
+predicted from the rest; :func:`ltmstore.heldout.heldout_error`) with every candidate, and the
+candidate with the lowest held-out error wins. The cost is a few solves of a few dozen pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ltmstore.heldout import heldout_error
+from ltmstore.solve import Geometry, get_method
+
+PIXELS = 48  # pixels of a tile that are cross-validated
+FOLDS = 2
+
+
+@dataclass(frozen=True)
+class Choice:
+    """The chosen parameters and the held-out error of every candidate."""
+
+    params: dict
+    errors: dict
+
+
+def auto_grid(method: str) -> dict:
+    """The method's ``AUTO_GRID`` (empty: nothing to choose)."""
+    import importlib
+
+    module = importlib.import_module(get_method(method).__module__)
+    return dict(getattr(module, "AUTO_GRID", {}))
+
+
+def choose_params(samples: np.ndarray, geometry: Geometry, method: str, *, params: dict,
+                  seed: int = 0) -> Choice:
+    """Pick, for this batch, the candidate of ``AUTO_GRID`` with the lowest held-out error.
+
+    Parameters already fixed in ``params`` are never overridden.
+    """
+    grid = {k: v for k, v in auto_grid(method).items() if k not in params}
+    if not grid:
+        return Choice(params=dict(params), errors={})
+    (name, candidates), = grid.items()
+    rng = np.random.default_rng(seed)
+    rows = rng.choice(len(samples), size=min(PIXELS, len(samples)), replace=False)
+    errors = {}
+    for value in candidates:
+        held = heldout_error(samples[rows], geometry, method, folds=FOLDS, seed=seed,
+                             params={**params, name: value})
+        errors[value] = held.relative_error
+    finite = {v: e for v, e in errors.items() if np.isfinite(e)}
+    best = min(finite, key=finite.get) if finite else candidates[len(candidates) // 2]
+    return Choice(params={**params, name: best}, errors=errors)
