@@ -101,6 +101,17 @@ def cmd_evaluate(a: argparse.Namespace) -> None:
     _print_json(compare_stores(a.store, a.truth))
 
 
+def cmd_bench(a: argparse.Namespace) -> None:
+    from ltmstore import benchmark
+
+    options = {"densities": (15.0, 27.0), "lattices": (16, 32), "size": 16} if a.quick else {}
+    records = benchmark.run(progress=lambda line: print(line, flush=True), **options)
+    result = benchmark.write(records, Path(a.out), command="ltm bench" + " --quick" * a.quick)
+    for row in result["summary"]:
+        print(f"{row['label']:<22s} {row['snr_db']:6.2f} dB  {row['ms_per_pixel']:9.3f} ms/pixel")
+    print(f"wrote {a.out}/bench.json and charts: {', '.join(result['charts'].values())}")
+
+
 def cmd_info(a: argparse.Namespace) -> None:
     from ltmstore.store import open_group
 
@@ -198,6 +209,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("store")
     p.add_argument("--truth", required=True, help="truth.zarr written by `ltm simulate`")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("bench", help="every method: speed against accuracy, JSON and charts",
+                       description="Sweep every method over scenes, path densities and lattice "
+                       "sizes on simulated captures; write bench.json and PNG charts.")
+    p.add_argument("--out", default="bench/results", help="output folder (default: %(default)s)")
+    p.add_argument("--quick", action="store_true", help="a small sweep (a minute or two)")
+    p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("info", help="print a store's provenance")
     p.add_argument("store")

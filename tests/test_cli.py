@@ -16,7 +16,7 @@ def one_line_error(proc, pattern: str) -> None:
 
 
 @pytest.mark.parametrize("command", ["demo", "simulate", "ingest", "ingest-rti", "reconstruct",
-                                     "relight", "evaluate", "info"])
+                                     "relight", "evaluate", "info", "bench"])
 def test_every_command_has_help(command):
     proc = run_ltm(command, "--help")
     assert proc.returncode == 0 and "usage: ltm" in proc.stdout

@@ -1,0 +1,27 @@
+"""The bench machinery on a tiny sweep: records, Pareto front, charts."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ltmstore import benchmark
+
+
+def test_pareto_front_keeps_only_unbeaten_points():
+    points = [(1.0, 10.0), (2.0, 9.0), (3.0, 12.0), (0.5, 5.0), (4.0, 12.0)]
+    assert benchmark.pareto_front(points) == [3, 0, 2]
+
+
+def test_a_tiny_sweep_writes_json_and_charts(tmp_path):
+    records = benchmark.run(scenes=("canvas",), densities=(27.0,), lattices=(8, 32), size=8,
+                            pixels=16, slow_pixels=4, repeats=1, progress=lambda line: None)
+    methods = {r["method"] for r in records if r["lattice"] == 32}
+    assert methods == set(benchmark.METHODS)
+    assert {r["method"] for r in records if r["lattice"] == 8} == {"cs"}
+    assert all(np.isfinite(r["snr_db"]) and r["ms_per_pixel"] > 0 for r in records)
+    result = benchmark.write(records, tmp_path, command="test")
+    assert json.loads((tmp_path / "bench.json").read_text())["summary"]
+    for path in result["charts"].values():
+        assert (tmp_path / path.split("/")[-1]).stat().st_size > 10_000
