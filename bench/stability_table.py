@@ -60,7 +60,7 @@ def markdown(table: dict, regimes: dict) -> str:
              "| flagged | " + " | ".join(f"{regimes[r]['flagged_fraction']:.0%}" for r in names)
              + " |"]
     for method, row in table.items():
-        cells = [f"{row[r]['snr_db']:.1f}" for r in names]
+        cells = [f"{row[r]['snr_db']:.1f}" if "error" not in row[r] else "crash" for r in names]
         lines.append(f"| `{method}` | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -79,8 +79,13 @@ def main() -> None:
     for method in methods:
         table[method] = {}
         for name, regime in regimes.items():
-            table[method][name] = measure(method, regime)
-            print(f"{method:>7s} {name:>10s} {table[method][name]['snr_db']:6.2f} dB", flush=True)
+            try:
+                row = measure(method, regime)
+            except Exception as exc:  # a method that crashes is a result too
+                row = {"snr_db": float("nan"), "error": f"{type(exc).__name__}: {exc}"}
+            table[method][name] = row
+            print(f"{method:>7s} {name:>10s} {row['snr_db']:6.2f} dB {row.get('error', '')}",
+                  flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     result = {"machine": {"platform": platform.platform(), "python": platform.python_version()},
               "ltmstore": __version__, "command": "python bench/stability_table.py",

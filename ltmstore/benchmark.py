@@ -200,7 +200,7 @@ def charts(records: list[dict], out: Path) -> dict[str, str]:
                 ax.plot(*zip(*pts, strict=True), marker="o", label=method)
         ax.set(title=scene, xlabel="path density (1/m)")
     axes[0].set_ylabel("SNR_Y (dB)")
-    axes[-1].legend(fontsize=7)
+    axes[0].legend(fontsize=7)
     fig.tight_layout()
     paths["snr_vs_density"] = out / "snr_vs_density.png"
     fig.savefig(paths["snr_vs_density"], dpi=120)
