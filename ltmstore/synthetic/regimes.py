@@ -5,7 +5,7 @@ LTM rendered on a small lattice, a handheld trajectory seen by a 30 fps video, a
 what goes wrong between the light and the binned samples:
 
 =============  ===========================================================================
-benign         canvas scene, the paper's K/M (about 0.3), exact positions, no noise
+benign         canvas scene, K/M about 0.35 (the paper: 0.29), exact positions, no noise
 sparse         a very short path: K/M below 0.05
 half_empty     the hand never leaves one half of the plane (the other half has no sample)
 shadows        relief scene: hard cast shadows (a raised frame, a block and a boss)
