@@ -124,3 +124,16 @@ def test_regularisation_and_confidence_are_chosen_and_stored(flow_run):
     assert ds["unsupported"].dims == ("y", "x") and ds["unsupported"].dtype == bool
     error = ds["expected_error"].values
     assert np.isfinite(error).all() and 0 <= error.min() and np.median(error) < 0.5
+
+
+def test_ltm_evaluate_reports_heldout_and_truth(flow_run, small_acquisition, tmp_path):
+    maps = tmp_path / "maps.png"
+    proc = run_ltm("evaluate", flow_run[0], "--truth", small_acquisition / "truth.zarr",
+                   "--maps", maps, "--folds", "3")
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["truth"]["snr_y_db"] > SNR_THRESHOLD_DB
+    assert 0 < report["heldout"]["relative_error"] < 0.5 and report["heldout"]["folds"] == 3
+    assert maps.stat().st_size > 10_000
+    no_truth = run_ltm("evaluate", flow_run[0], "--pixels", "64")
+    assert no_truth.returncode == 0 and "truth" not in json.loads(no_truth.stdout)
