@@ -136,9 +136,9 @@ def scribble(plane: Plane, *, path_density: float, seed: int, speed: float = 0.2
 
 
 def _smooth_noise(n: int, corr: float, rng: np.random.Generator) -> np.ndarray:
-    """Unit-variance Gaussian noise correlated over about ``corr`` samples."""
+    """Unit-variance Gaussian noise correlated over about ``corr`` samples, clipped at 3 sigma."""
     noise = ndimage.gaussian_filter1d(rng.standard_normal(n), max(corr, 1e-3), mode="wrap")
-    return noise / max(noise.std(), 1e-12)
+    return np.clip(noise / max(noise.std(), 1e-12), -3.0, 3.0)  # short paths: no blow-up
 
 
 def _folded_walk(bounds, length: float, rng: np.random.Generator):

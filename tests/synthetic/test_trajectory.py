@@ -126,3 +126,10 @@ def test_bad_tracker_and_trajectory_arguments(path):
         Trajectory(np.array([0.0, 0.0]), np.zeros(2), np.zeros(2), np.zeros(2))
     with pytest.raises(LtmError, match=r"excursion_fraction 0.7 must be in \[0, 0.5\)"):
         scribble(PLANE, path_density=1.0, seed=0, excursion_fraction=0.7)
+
+
+@pytest.mark.parametrize("density", [0.2, 0.5, 1.0])
+def test_very_short_paths_do_not_blow_up(density):
+    plane = Plane(r=(-0.1, 0.1), s=(-0.2, 0.2), height=0.3)
+    path = scribble(plane, path_density=density, seed=0)
+    assert np.isfinite(path.t).all() and path.path_density(plane) == pytest.approx(density, 0.1)
