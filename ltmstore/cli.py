@@ -63,6 +63,7 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
     lattice = parse_lattice(a.lattice) if a.lattice else None
     info = reconstruct(a.store, scheduler=a.scheduler, lattice=lattice, delta_rs=a.delta_rs,
                        method=a.method, auto=not a.no_auto, tile=a.tile,
+                       color={"auto": None, "on": True, "off": False}[a.color],
                        overwrite=a.overwrite)
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
           f"path density {info['path_density']:.1f}/unit  method {info['method']}  "
@@ -200,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-auto", action="store_true",
                    help="keep the method's default regularisation instead of choosing it per "
                    "tile by held-out error")
+    p.add_argument("--color", choices=("auto", "on", "off"), default="auto",
+                   help="also reconstruct Cb and Cr LTMs (a colour LTM); auto: when ingest "
+                   "found that the chroma changes with the light (default: %(default)s)")
     p.add_argument("--tile", type=int, default=32, help="pixel tile side (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="recompute an existing ltm")
     p.set_defaults(func=cmd_reconstruct)

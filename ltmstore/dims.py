@@ -30,10 +30,14 @@ COLOR_CHANNELS = ("R", "G", "B")
 
 # Store variables (ARCHITECTURE.md section 3.2).
 FRAMES = "frames"  # (t, y, x) linear luminance
+FRAME_CHROMA = "frame_chroma"  # (channel, t, y, x) float16 linear Cb, Cr (for a colour LTM)
 POSES = ("pose_r", "pose_s", "pose_z", "pose_valid")  # (t,) light per frame; + pose_p, pose_q in 6D
 SAMPLES = "samples"  # (y, x, r, s[, p, q]) binned means, NaN where unobserved
 COUNT = "count"  # (r, s[, p, q]) number of frames per cell
 LTM = "ltm"  # (y, x, r, s[, p, q]) float32 linear luminance
+# A colour LTM, when the chroma varies with the light: the Cb and Cr LTMs beside ``ltm``.
+CHROMA_LTM = {"cb": "ltm_cb", "cr": "ltm_cr"}
+CHROMA_SAMPLES = {"cb": "samples_cb", "cr": "samples_cr"}
 EXPECTED_ERROR = "expected_error"  # (y, x) held-out RMS error / observed range, per pixel
 UNSUPPORTED = "unsupported"  # (y, x) True where the data cannot support a model
 CHROMA = "chroma"  # (y, x, channel) chroma as a ratio to luminance (illumination invariant)

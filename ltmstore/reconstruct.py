@@ -21,7 +21,19 @@ from tqdm.auto import tqdm
 from ltmstore import store as st
 from ltmstore.cluster import dask_client
 from ltmstore.confidence import expected_error, flag_unsupported
-from ltmstore.dims import COUNT, EXPECTED_ERROR, LTM, SAMPLES, UNSUPPORTED, Lattice, Plane
+from ltmstore.dims import (
+    CHROMA_CHANNELS,
+    CHROMA_LTM,
+    CHROMA_SAMPLES,
+    COUNT,
+    EXPECTED_ERROR,
+    FRAME_CHROMA,
+    LTM,
+    SAMPLES,
+    UNSUPPORTED,
+    Lattice,
+    Plane,
+)
 from ltmstore.errors import LtmError
 from ltmstore.resample import Binning, bin_frames, bin_positions, path_length
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
@@ -106,9 +118,10 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
               if auto else Choice(params=params, errors={}))
     estimate = get_method(method)(batch, geometry, **choice.params)
     tile = samples.shape[:2]
-    out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
-    out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
-        batch, geometry, method, params=choice.params, folds=1).reshape(tile)
+    if EXPECTED_ERROR in out:  # the luminance pass also maps the confidence
+        out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
+        out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
+            batch, geometry, method, params=choice.params, folds=1).reshape(tile)
     out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
     record = {"seconds": time.perf_counter() - start, "params": choice.params,
               "heldout": choice.errors}
@@ -117,15 +130,19 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     return result
 
 
-def _write_samples(group: zarr.Group, frames: da.Array, binning: Binning,
-                   plan: TilePlan, client: Client) -> zarr.Array:
+def _write_lattice(group: zarr.Group, binning: Binning) -> None:
     lattice = binning.lattice
     for name, values in lattice.coords().items():
         st.write_coord(group, name, values)
     count = st.create_variable(group, COUNT, lattice.dims, lattice.shape, chunks=lattice.shape,
                                dtype=np.int32, fill_value=0)
     count[...] = binning.count
-    samples = st.create_variable(group, SAMPLES, ("y", "x", *lattice.dims),
+
+
+def _write_samples(group: zarr.Group, name: str, frames: da.Array, binning: Binning,
+                   plan: TilePlan, client: Client) -> zarr.Array:
+    lattice = binning.lattice
+    samples = st.create_variable(group, name, ("y", "x", *lattice.dims),
                                  (*plan.image, *lattice.shape), chunks=plan.block)
     binned = bin_frames(frames, binning, tile=plan.tile).rechunk(plan.block)
     client.compute(da.store(binned, samples, lock=False, compute=False)).result()
@@ -135,7 +152,8 @@ def _write_samples(group: zarr.Group, frames: da.Array, binning: Binning,
 def reconstruct(path, *, client: Client | None = None, scheduler: str | None = None,
                 lattice: tuple[int, int] | None = None, delta_rs: float | None = None,
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
-                tile: int = 32, overwrite: bool = False, progress: bool = True) -> dict:
+                color: bool | None = None, tile: int = 32, overwrite: bool = False,
+                progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store, in place.
 
     Parameters
@@ -156,6 +174,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     auto : bool
         Choose the method's regularisation per tile by held-out error
         (:mod:`ltmstore.solve.select`); parameters given in ``params`` stay fixed.
+    color : bool, optional
+        Also reconstruct Cb and Cr LTMs (``ltm_cb``, ``ltm_cr``: a colour LTM). Default: when
+        ingest found that the chroma varies with the light (``stages.ingest.chroma``).
     tile : int
         Pixel tile side: the unit of work and the ``ltm`` shard.
     overwrite : bool
@@ -173,8 +194,13 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     st.require_stage(group, "ingest", path)
     if st.stages(group).get("reconstruct", {}).get("complete") and not overwrite:
         raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute it")
+    if color is None:
+        color = not st.stages(group)["ingest"].get("chroma", {}).get("invariant", True)
+    if color and FRAME_CHROMA not in group:
+        raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
+                       "ingest it again with this version")
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
-               auto=auto, tile=tile, progress=progress)
+               auto=auto, color=color, tile=tile, progress=progress)
     if client is not None:
         return _reconstruct(group, client, **run)
     with dask_client(scheduler) as own:
@@ -190,7 +216,7 @@ def _pick_lattice(plane: Plane, r, s, valid, lattice, delta_rs) -> tuple[Lattice
 
 
 def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
-                 params: dict, auto: bool, tile: int, progress: bool) -> dict:
+                 params: dict, auto: bool, color: bool, tile: int, progress: bool) -> dict:
     plane = Plane.from_json(group.attrs["acquisition"]["plane"])
     r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     timings = {}
@@ -204,7 +230,16 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
 
     st.begin_stage(group, "resample")
     st.begin_stage(group, "reconstruct")
-    samples = _write_samples(group, frames, binning, plan, client)
+    _write_lattice(group, binning)
+    for name in (*CHROMA_LTM.values(), *CHROMA_SAMPLES.values()):
+        if name in group and not color:  # a colour LTM of an earlier run
+            del group[name]
+    samples = _write_samples(group, SAMPLES, frames, binning, plan, client)
+    channels = {}
+    if color:
+        chroma = da.from_zarr(group[FRAME_CHROMA])
+        channels = {c: _write_samples(group, CHROMA_SAMPLES[c], chroma[i], binning, plan, client)
+                    for i, c in enumerate(CHROMA_CHANNELS)}
     density = path_length(r, s, valid=valid) / plane.area
     sampling = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k,
                 "M": binning.m, "sampling_ratio": binning.ratio, "path_density": density}
@@ -221,8 +256,14 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
                                            chunks=plan.tile, dtype=bool, fill_value=True)}
     geometry = Geometry(lattice=lat, height=plane.height)
     records = _solve_tiles(samples, out, plan, geometry, method, params, auto, client, progress)
+    for c, chroma_samples in channels.items():  # the colour LTM: same method, default params
+        chroma_out = {LTM: st.create_variable(group, CHROMA_LTM[c], ("y", "x", *lat.dims),
+                                              (*plan.image, *lat.shape), chunks=plan.chunks,
+                                              shards=plan.shards)}
+        _solve_tiles(chroma_samples, chroma_out, plan, geometry, method, params, False, client,
+                     progress)
     timings["solve_s"] = time.perf_counter() - start
-    info = {**sampling, "method": method, "params": params, "auto": auto,
+    info = {**sampling, "method": method, "params": params, "auto": auto, "color": color,
             "chosen_per_tile": summarise_choices(records), "plan": asdict(plan),
             "timings": timings,
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}

@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 import xarray as xr
 
-from ltmstore.dims import CHROMA, COLOR, COLOR_CHANNELS, LTM, Plane, rgb_from_ycbcr
+from ltmstore.dims import CHROMA, CHROMA_LTM, COLOR, COLOR_CHANNELS, LTM, Plane, rgb_from_ycbcr
 from ltmstore.errors import LtmError
 from ltmstore.store import open_store
 
@@ -83,7 +83,8 @@ def relight(store, lights, *, color: bool = True) -> xr.DataArray:
         Point lights ``(r, s)`` anywhere on the plane; or a weight pattern over the lattice
         with dims ``(r, s)`` or ``(light, r, s)`` (area lights, environments).
     color : bool
-        Return linear RGB (dim ``color``) from the stored chroma; else luminance only.
+        Return linear RGB (dim ``color``): from the colour LTM when the store has one
+        (``ltm_cb``, ``ltm_cr``), else from the stored chroma ratios; else luminance only.
 
     Returns
     -------
@@ -93,27 +94,40 @@ def relight(store, lights, *, color: bool = True) -> xr.DataArray:
     ds = _as_dataset(store)
     if LTM not in ds:
         raise LtmError("the store has no complete ltm; run `ltm reconstruct` first")
-    ltm = ds[LTM]
     if isinstance(lights, xr.DataArray):
         pattern = lights if LIGHT in lights.dims else lights.expand_dims(LIGHT)
-        image = xr.dot(ltm, pattern, dim=["r", "s"])
+
+        def apply(ltm: xr.DataArray) -> xr.DataArray:
+            return xr.dot(ltm, pattern, dim=["r", "s"])
     else:
         points = np.atleast_2d(np.asarray(lights, dtype=float))
         if points.shape[-1] != 2 or not np.isfinite(points).all():
             raise LtmError(f"lights {lights!r} must be finite (r, s) pairs")
         acq = ds.attrs.get("acquisition", {})
         plane = Plane.from_json(acq["plane"]) if "plane" in acq else None
-        images = [_point_image(ltm, light_weights(ltm, p, plane)) for p in points]
-        image = xr.concat(images, dim=LIGHT).assign_coords(
-            {LIGHT: np.arange(len(points)), "light_r": (LIGHT, points[:, 0]),
-             "light_s": (LIGHT, points[:, 1])})
-    image = image.transpose(LIGHT, "y", "x")
-    return to_rgb(image, ds[CHROMA]) if color and CHROMA in ds else image
+        weights = [light_weights(ds[LTM], p, plane) for p in points]
+
+        def apply(ltm: xr.DataArray) -> xr.DataArray:
+            image = xr.concat([_point_image(ltm, w) for w in weights], dim=LIGHT)
+            return image.assign_coords({LIGHT: np.arange(len(points)),
+                                        "light_r": (LIGHT, points[:, 0]),
+                                        "light_s": (LIGHT, points[:, 1])})
+    image = apply(ds[LTM]).transpose(LIGHT, "y", "x")
+    if not color:
+        return image
+    if all(name in ds for name in CHROMA_LTM.values()):  # a colour LTM
+        cb, cr = (apply(ds[CHROMA_LTM[c]]).transpose(LIGHT, "y", "x") for c in ("cb", "cr"))
+        return _stack_rgb(image, cb, cr)
+    return to_rgb(image, ds[CHROMA]) if CHROMA in ds else image
 
 
 def to_rgb(luminance: xr.DataArray, chroma: xr.DataArray) -> xr.DataArray:
     """Linear RGB from luminance and chroma stored as ratios to luminance."""
     cb = luminance * chroma.sel(channel="cb", drop=True)
     cr = luminance * chroma.sel(channel="cr", drop=True)
-    rgb = xr.concat(rgb_from_ycbcr(luminance, cb, cr), dim=COLOR)
+    return _stack_rgb(luminance, cb, cr)
+
+
+def _stack_rgb(y: xr.DataArray, cb: xr.DataArray, cr: xr.DataArray) -> xr.DataArray:
+    rgb = xr.concat(rgb_from_ycbcr(y, cb, cr), dim=COLOR)
     return rgb.assign_coords({COLOR: list(COLOR_CHANNELS)}).transpose(..., COLOR)

@@ -26,10 +26,10 @@ from ltmstore.errors import LtmError
 STAGES_ATTR = "stages"
 # Which variables each stage writes (to hide the output of stages that did not complete).
 STAGE_VARIABLES = {
-    "ingest": ("frames", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q", "pose_valid",
-               "chroma", "chroma_spread"),
-    "resample": ("samples", "count"),
-    "reconstruct": ("ltm", "expected_error", "unsupported"),
+    "ingest": ("frames", "frame_chroma", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q",
+               "pose_valid", "chroma", "chroma_spread"),
+    "resample": ("samples", "count", "samples_cb", "samples_cr"),
+    "reconstruct": ("ltm", "expected_error", "unsupported", "ltm_cb", "ltm_cr"),
 }
 
 
