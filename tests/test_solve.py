@@ -66,3 +66,21 @@ def test_fast_method_matches_lars_on_a_scene_like_ltf():
 def test_unknown_method_is_a_clear_error():
     with pytest.raises(LtmError, match="unknown method .magic.; expected one of cs, cubic, "):
         get_method("magic")
+
+
+def test_automatic_threshold_leaves_the_default_only_for_a_clear_gain():
+    from ltmstore.solve.select import choose_params
+
+    rng = np.random.default_rng(6)
+    r, s = np.meshgrid(np.linspace(-1, 1, 16), np.linspace(-1, 1, 16), indexing="ij")
+    clean = np.array([1 / (1 + (r - a) ** 2 + s**2) for a in rng.uniform(-0.5, 0.5, 64)])
+    mask = rng.random((16, 16)) < 0.35
+    geometry = Geometry.from_shape((16, 16))
+    choice = choose_params(np.where(mask, clean, np.nan), geometry, "cs", params={})
+    assert choice.params == {"lam_min": 1e-3} and len(choice.errors) == 3
+    noisy = clean + rng.normal(0, 0.05, clean.shape)
+    choice = choose_params(np.where(mask, noisy, np.nan), geometry, "cs", params={})
+    errors = choice.errors
+    assert errors[choice.params["lam_min"]] <= errors[1e-3]
+    assert choose_params(np.where(mask, clean, np.nan), geometry, "cs",
+                         params={"lam_min": 0.1}).params == {"lam_min": 0.1}
