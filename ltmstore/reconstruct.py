@@ -144,7 +144,7 @@ def _write_samples(group: zarr.Group, name: str, frames: da.Array, binning: Binn
     lattice = binning.lattice
     samples = st.create_variable(group, name, ("y", "x", *lattice.dims),
                                  (*plan.image, *lattice.shape), chunks=plan.block)
-    binned = bin_frames(frames, binning, tile=plan.tile).rechunk(plan.block)
+    binned = bin_frames(frames, binning, tile=plan.tile).rechunk(plan.block, method="tasks")
     client.compute(da.store(binned, samples, lock=False, compute=False)).result()
     return samples
 

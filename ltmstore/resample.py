@@ -82,7 +82,7 @@ def bin_frames(frames: da.Array, binning: Binning, *, block_frames: int = 512,
     binning : Binning
         The cell of every frame (``-1`` = not used).
     """
-    frames = frames.rechunk((block_frames, *tile))
+    frames = frames.rechunk((block_frames, *tile), method="tasks")  # splits: no P2P shuffle
     cells = da.from_array(binning.cell[:, None, None], chunks=(frames.chunks[0], 1, 1))
     partial = da.map_blocks(_block_sums, frames, cells, m=binning.m, new_axis=3,
                             chunks=((1,) * frames.numblocks[0], *frames.chunks[1:],
