@@ -189,6 +189,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     """
     if lattice is not None and delta_rs is not None:
         raise LtmError("give either --lattice or --delta-rs, not both")
+    if int(tile) != tile or tile < 1:
+        raise LtmError(f"--tile {tile!r} must be a positive whole number of pixels")
     get_method(method)
     group = st.open_group(path, mode="r+")
     st.require_stage(group, "ingest", path)
@@ -230,10 +232,10 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
 
     st.begin_stage(group, "resample")
     st.begin_stage(group, "reconstruct")
-    _write_lattice(group, binning)
-    for name in (*CHROMA_LTM.values(), *CHROMA_SAMPLES.values()):
-        if name in group and not color:  # a colour LTM of an earlier run
+    for name in (*st.STAGE_VARIABLES["resample"], *st.STAGE_VARIABLES["reconstruct"]):
+        if name in group:  # an earlier run's output, possibly on another lattice
             del group[name]
+    _write_lattice(group, binning)
     samples = _write_samples(group, SAMPLES, frames, binning, plan, client)
     channels = {}
     if color:

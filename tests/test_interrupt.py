@@ -64,3 +64,19 @@ def test_sigkill_mid_solve_leaves_the_stage_incomplete(ingested):
     assert_not_complete(ingested)
     with pytest.raises(LtmError, match="no complete ltm"):
         relight(ingested, [(0.0, 0.0)])
+
+
+def test_a_failed_rerun_on_another_lattice_leaves_a_consistent_store(ingested, client):
+    """The old ltm (16 x 16) must not survive beside the new lattice's coordinates."""
+    with pytest.raises(ValueError, match="many"):
+        reconstruct(ingested, client=client, lattice=(12, 12), overwrite=True,
+                    params={"n_iter": "many"}, progress=False)
+    ds = open_store(ingested)
+    assert "ltm" not in ds and ds.sizes["r"] == 12
+
+
+def test_bad_tile_is_a_clear_error_before_any_write(ingested):
+    before = stages(open_group(ingested))
+    with pytest.raises(LtmError, match="--tile 0 must be a positive"):
+        reconstruct(ingested, lattice=(16, 16), tile=0, overwrite=True)
+    assert stages(open_group(ingested)) == before
