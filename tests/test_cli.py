@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import hashlib
+import json
 
 import pytest
 from pipeline_helpers import run_ltm
 
 
 def one_line_error(proc, pattern: str) -> None:
+    """Exit status 2 and exactly one error line, the last one (a progress bar may precede it)."""
     assert proc.returncode == 2, (proc.returncode, proc.stderr)
-    assert proc.stderr.count("\n") == 1, proc.stderr
-    assert proc.stderr.startswith("ltm") and pattern in proc.stderr, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    errors = [line for line in lines if line.startswith("ltm") and "error" in line]
+    assert errors == [lines[-1]], proc.stderr
+    assert pattern in lines[-1], proc.stderr
     assert "Traceback" not in proc.stderr
 
 
@@ -42,15 +46,44 @@ def test_simulate_refuses_existing_output_without_overwrite(small_acquisition):
     assert hashlib.sha256((small_acquisition / "poses.csv").read_bytes()).hexdigest() == digest
 
 
-@pytest.mark.parametrize(("damage", "pattern"), [
-    (lambda acq: (acq / "acquisition.json").write_text("{not json"), "acquisition.json"),
-    (lambda acq: (acq / "poses.csv").write_text("t,r,s,z\n0,nan,0,0.3\n1,0,0,0.3\n"),
-     "r = 'nan' is not a finite"),
-    (lambda acq: (acq / "video.mkv").write_bytes(b"not a video at all"), "video"),
-])
-def test_ingest_errors_reach_the_user_as_one_line(damage, pattern, tmp_path):
+def _edit_json(acq, **changes):
+    meta = json.loads((acq / "acquisition.json").read_text())
+    meta.update(changes)
+    (acq / "acquisition.json").write_text(json.dumps(meta))
+
+
+def _truncate_video(acq):
+    data = (acq / "video.mkv").read_bytes()
+    (acq / "video.mkv").write_bytes(data[: len(data) // 2])
+
+
+# Every bad input of the ingest contract (issue: missing or malformed acquisition.json, a path
+# that leaves the folder, poses with NaN, times not increasing, too few samples, a video that
+# cannot be opened or decoded), through the installed command.
+INGEST_DAMAGE = {
+    "missing json": (lambda acq: (acq / "acquisition.json").unlink(), "acquisition.json"),
+    "malformed json": (lambda acq: (acq / "acquisition.json").write_text("{not json"),
+                       "acquisition.json"),
+    "path leaves folder": (lambda acq: _edit_json(acq, poses="../poses.csv"), "leaves"),
+    "absolute path": (lambda acq: _edit_json(acq, video="/etc/passwd"), "/etc/passwd"),
+    "NaN pose": (lambda acq: (acq / "poses.csv").write_text("t,r,s,z\n0,nan,0,0.3\n1,0,0,0.3\n"),
+                 "r = 'nan' is not a finite"),
+    "times not increasing": (
+        lambda acq: (acq / "poses.csv").write_text("t,r,s,z\n0,0,0,0.3\n1,0,0,0.3\n1,0,0,0.3\n"),
+        "increasing"),
+    "too few samples": (lambda acq: (acq / "poses.csv").write_text("t,r,s,z\n0,0,0,0.3\n"),
+                        "expected at least 2"),
+    "not a video": (lambda acq: (acq / "video.mkv").write_bytes(b"not a video at all"),
+                    "cannot be decoded"),
+    "truncated video": (_truncate_video, "cannot be decoded"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(INGEST_DAMAGE))
+def test_ingest_errors_reach_the_user_as_one_line(case, tmp_path):
     from ingest_helpers import make_acquisition, tree_hashes
 
+    damage, pattern = INGEST_DAMAGE[case]
     acq = make_acquisition(tmp_path / "acq")
     damage(acq)
     before = tree_hashes(acq)
