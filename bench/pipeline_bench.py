@@ -19,10 +19,10 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
 from zarr.storage import LocalStore  # noqa: E402
 
 from ltmstore import __version__, relight  # noqa: E402
+from ltmstore.benchmark import random_lights, relight_cost  # noqa: E402
 from ltmstore.evaluate import snr_db  # noqa: E402
 from ltmstore.ingest import ingest  # noqa: E402
 from ltmstore.reconstruct import reconstruct  # noqa: E402
@@ -75,15 +75,7 @@ def relight_queries(store: Path, *, repeats: int) -> dict:
     ds = open_store(store)
     total = int(ds["ltm"].nbytes)
     plane = ds.attrs["acquisition"]["plane"]
-    rng = np.random.default_rng(0)
-    lights = np.column_stack([rng.uniform(*plane["r"], repeats), rng.uniform(*plane["s"], repeats)])
-    point_bytes, point_s = [], []
-    for light in lights:
-        counting = CountingStore(LocalStore(str(store), read_only=True))
-        start = time.perf_counter()
-        relight(open_store(counting), [light], color=False).compute()
-        point_s.append(time.perf_counter() - start)
-        point_bytes.append(counting.bytes_read)
+    point = relight_cost(store, random_lights(plane, repeats))
     counting = CountingStore(LocalStore(str(store), read_only=True))
     dsc = open_store(counting)
     area = dsc["ltm"].isel(y=0, x=0, drop=True) * 0 + 1.0 / dsc["ltm"][0, 0].size
@@ -92,9 +84,9 @@ def relight_queries(store: Path, *, repeats: int) -> dict:
     area_s = time.perf_counter() - start
     return {"ltm_bytes_on_disk_uncompressed": total, "shape": list(ds["ltm"].shape),
             "inner_chunks": list(ds["ltm"].encoding.get("preferred_chunks", {}).values()),
-            "point_light_bytes_read_median": statistics.median(point_bytes),
-            "point_light_fraction_read": statistics.median(point_bytes) / total,
-            "point_light_seconds_median": statistics.median(point_s),
+            "point_light_bytes_read_median": point["bytes_read_median"],
+            "point_light_fraction_read": point["bytes_read_median"] / total,
+            "point_light_seconds_median": point["seconds_median"],
             "area_light_bytes_read": counting.bytes_read, "area_light_seconds": area_s,
             "repeats": repeats}
 

@@ -14,20 +14,18 @@ import json
 import os
 import platform
 import shutil
-import statistics
 import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import psutil
-from zarr.storage import LocalStore
 
-from ltmstore import __version__, relight
+from ltmstore import __version__
+from ltmstore.benchmark import random_lights, relight_cost
 from ltmstore.dims import Plane
 from ltmstore.ingest import ingest
 from ltmstore.reconstruct import reconstruct
-from ltmstore.store import CountingStore, open_store
+from ltmstore.store import open_store
 from ltmstore.synthetic.simulate import simulate_acquisition
 
 CONFIGS = {
@@ -68,20 +66,6 @@ class PeakMemory:
         self._thread.join()
 
 
-def relight_cost(store: Path, plane: Plane, repeats: int = 5) -> dict:
-    rng = np.random.default_rng(0)
-    seconds, nbytes = [], []
-    for _ in range(repeats):
-        light = (rng.uniform(*plane.r), rng.uniform(*plane.s))
-        counting = CountingStore(LocalStore(str(store), read_only=True))
-        start = time.perf_counter()
-        relight(open_store(counting), [light], color=False).compute()
-        seconds.append(time.perf_counter() - start)
-        nbytes.append(counting.bytes_read)
-    return {"seconds_median": statistics.median(seconds), "bytes_read_median":
-            statistics.median(nbytes), "repeats": repeats}
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--config", choices=sorted(CONFIGS), default="toys")
@@ -116,7 +100,8 @@ def main() -> None:
         "ltm_gb_float32": ltm.nbytes / 1e9, "timings": {**times, **info["timings"]},
         "seconds_per_pixel_solve": info["seconds_per_pixel"],
         "peak_memory_gib_reconstruct": memory.peak / 2**30,
-        "relight_point_light": relight_cost(work / "store.zarr", cfg["plane"]),
+        "relight_point_light": relight_cost(work / "store.zarr",
+                                            random_lights(cfg["plane"].to_json(), 5)),
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -11,6 +11,8 @@ separate solve of a quarter of the pixels, scaled to the whole batch.
 from __future__ import annotations
 
 import json
+import os
+import platform
 import statistics
 import time
 import tracemalloc
@@ -21,12 +23,16 @@ from pathlib import Path
 import dask.array as da
 import numpy as np
 from threadpoolctl import threadpool_limits
+from zarr.storage import LocalStore
 
+from ltmstore import __version__
 from ltmstore.dims import LUMA, Lattice
 from ltmstore.evaluate import snr_db
+from ltmstore.relight import relight
 from ltmstore.resample import bin_frames, bin_positions
 from ltmstore.solve import METHODS, Geometry, get_method
 from ltmstore.solve.select import choose_params
+from ltmstore.store import CountingStore, open_store
 from ltmstore.synthetic.render import iter_frames, render_ltm
 from ltmstore.synthetic.simulate import EXPOSURE_PEAK, plan_simulation
 
@@ -240,13 +246,28 @@ def charts(records: list[dict], out: Path) -> dict[str, str]:
     return {k: str(v) for k, v in paths.items()}
 
 
+def random_lights(plane: dict, n: int, *, seed: int = 0) -> np.ndarray:
+    """``n`` point lights drawn uniformly over a plane rectangle (``acquisition["plane"]``)."""
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(*plane["r"], n), rng.uniform(*plane["s"], n)])
+
+
+def relight_cost(store: Path, lights: np.ndarray) -> dict:
+    """Median time and bytes read (counted at the Zarr store) of relighting one point light,
+    each light on a freshly opened store so that nothing is cached."""
+    seconds, nbytes = [], []
+    for light in lights:
+        counting = CountingStore(LocalStore(str(store), read_only=True))
+        start = time.perf_counter()
+        relight(open_store(counting), [light], color=False).compute()
+        seconds.append(time.perf_counter() - start)
+        nbytes.append(counting.bytes_read)
+    return {"seconds_median": statistics.median(seconds),
+            "bytes_read_median": statistics.median(nbytes), "repeats": len(lights)}
+
+
 def write(records: list[dict], out: Path, *, command: str) -> dict:
     """``bench.json`` (records, summary, machine) and the charts, under ``out``."""
-    import os
-    import platform
-
-    from ltmstore import __version__
-
     out.mkdir(parents=True, exist_ok=True)
     paths = charts(records, out)
     result = {"command": command, "ltmstore": __version__,
