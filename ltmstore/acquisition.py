@@ -26,6 +26,7 @@ REQUIRED_KEYS = ("format", "video", "poses", "plane", "transfer")
 POSE_COLUMNS = ("t", "r", "s", "z")
 VIEW_COLUMNS = ("p", "q")
 MIN_POSES = 2
+MAX_JSON_BYTES = 1024 * 1024  # acquisition.json is a few hundred bytes
 
 
 @dataclass(frozen=True)
@@ -109,15 +110,29 @@ def resolve_inside(folder: Path, name: object, what: str) -> Path:
     """
     if not isinstance(name, str) or not name.strip():
         raise LtmError(f"{what} {name!r} must be a file name relative to {str(folder)!r}")
+    if "\x00" in name:
+        raise LtmError(f"{what} {name!r} holds a NUL character; expected a file name")
     if Path(name).is_absolute():
         raise LtmError(f"{what} {name!r} is an absolute path; expected a path relative to "
                        f"{str(folder)!r}")
-    root = folder.resolve()
-    path = (root / name).resolve()
+    try:
+        root = folder.resolve()
+        path = (root / name).resolve()
+    except (OSError, RuntimeError) as exc:  # a symlink loop, a name too long
+        raise LtmError(f"{what} {name!r} cannot be resolved inside {str(folder)!r}: "
+                       f"{getattr(exc, 'strerror', None) or exc}") from exc
     if not path.is_relative_to(root):
         raise LtmError(f"{what} {name!r} leaves the folder {str(folder)!r} (resolves to "
                        f"{str(path)!r}); expected a path inside it")
     return path
+
+
+def is_file(path: Path) -> bool:
+    """``path.is_file()``, False for names the system refuses (too long, not a folder...)."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
 
 
 def sha256_file(path: Path, *, block: int = 1 << 20) -> str:
@@ -177,6 +192,9 @@ def load_acquisition(folder: str | os.PathLike) -> Acquisition:
 def _read_json(path: Path) -> dict:
     if not path.is_file():
         raise LtmError(f"acquisition folder {str(path.parent)!r} has no acquisition.json")
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise LtmError(f"{str(path)} is {path.stat().st_size} bytes; expected a small JSON file "
+                       f"(at most {MAX_JSON_BYTES} bytes)")
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
@@ -184,6 +202,9 @@ def _read_json(path: Path) -> dict:
                        f"column {exc.colno}") from exc
     except UnicodeDecodeError as exc:
         raise LtmError(f"{str(path)} is not UTF-8 text: {exc.reason}") from exc
+    except (ValueError, RecursionError) as exc:  # 5000-digit integers, nesting 100000 deep
+        raise LtmError(f"{str(path)} is not a usable JSON object: "
+                       f"{' '.join(str(exc).split()) or type(exc).__name__}") from exc
     if not isinstance(meta, dict):
         raise LtmError(f"{str(path)} holds a {type(meta).__name__}; expected a JSON object")
     return meta
@@ -191,7 +212,7 @@ def _read_json(path: Path) -> dict:
 
 def _existing_file(folder: Path, name: object, what: str) -> Path:
     path = resolve_inside(folder, name, what)
-    if not path.is_file():
+    if not is_file(path):
         raise LtmError(f"{what} file {name!r} does not exist in {str(folder)!r}")
     return path
 
@@ -201,9 +222,14 @@ def _plane(value: object, where: str) -> Plane:
         raise LtmError(f"{where}: plane {value!r} must look like "
                        "{'r': [min, max], 's': [min, max], 'height': h}")
     try:
-        return Plane.from_json(value)
+        plane = Plane.from_json(value)
     except LtmError as exc:
         raise LtmError(f"{where}: {exc}") from exc
+    extent = (plane.r[1] - plane.r[0], plane.s[1] - plane.s[0])
+    if not all(math.isfinite(e) and e > 0 for e in (*extent, plane.area)):
+        raise LtmError(f"{where}: plane r {list(plane.r)}, s {list(plane.s)} spans a rectangle "
+                       f"of size {list(extent)}; expected a finite, non-empty rectangle")
+    return plane
 
 
 def _time_offset(value: object, where: str) -> float:

@@ -35,12 +35,79 @@ def _print_json(obj) -> None:
 
 
 def cmd_simulate(a: argparse.Namespace) -> None:
+    if getattr(a, "raw", False):
+        return cmd_simulate_raw(a)
     from ltmstore.synthetic.simulate import simulate_acquisition
 
     density = {} if a.path_density is None else {"path_density": a.path_density}
     summary = simulate_acquisition(a.out, scene=a.scene, seed=a.seed, lossy=a.lossy,
-                                   size=a.size, overwrite=a.overwrite, **density)
+                                   size=a.size, overwrite=a.overwrite,
+                                   view=getattr(a, "six_d", False), **density)
     _print_json(summary)
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    try:
+        dx, dy, dz = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must look like DX,DY,DZ (metres)") from None
+    return dx, dy, dz
+
+
+def cmd_simulate_raw(a: argparse.Namespace) -> None:
+    from ltmstore.synthetic.raw import simulate_raw
+
+    if getattr(a, "six_d", False) or a.lossy:
+        raise LtmError("--raw simulates a 4D capture with lossless videos; it cannot be "
+                       "combined with --6d or --lossy")
+    density = {} if a.path_density is None else {"path_density": a.path_density}
+    _print_json(simulate_raw(a.out, scene=a.scene, seed=a.seed, size=a.size,
+                             overwrite=a.overwrite, **density))
+
+
+def cmd_board(a: argparse.Namespace) -> None:
+    from ltmstore.board import board_spec, parse_squares, write_board
+
+    squares = parse_squares(a.squares) if a.squares else None
+    spec = board_spec(a.size, squares=squares, square_mm=a.square_mm)
+    info = write_board(a.output, spec, dpi=a.dpi, overwrite=a.overwrite)
+    print(f"wrote {info['image']} ({spec.squares[0]}x{spec.squares[1]} squares of "
+          f"{spec.square_length * 1000:g} mm, {spec.dictionary}; print at 100 %) and "
+          f"{info['spec']}")
+
+
+def cmd_calibrate(a: argparse.Namespace) -> None:
+    from ltmstore.board import load_board
+    from ltmstore.calibrate import calibrate_video
+
+    spec = load_board(a.board)
+    out = Path(a.output)
+    if out.exists() and not a.overwrite:
+        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    intr, report = calibrate_video(a.video, spec)
+    intr.write(out, {"calibration": report})
+    print(f"reprojection error {report['reprojection_rms_px']:.3f} px RMS over "
+          f"{report['views_used']} views; focal {report['focal_px'][0]:.1f} px; wrote {out}")
+
+
+def cmd_track(a: argparse.Namespace) -> None:
+    from ltmstore.board import load_board
+    from ltmstore.calibrate import load_intrinsics
+    from ltmstore.track import TrackConfig, track
+
+    spec = load_board(a.board)
+    intr = load_intrinsics(a.intrinsics)
+    config = TrackConfig(led_offset=a.led_offset, max_reprojection_px=a.max_reprojection,
+                         max_tilt_deg=a.max_tilt, height=a.height)
+    _print_json(track(a.video, spec, intr, a.output, config=config, overwrite=a.overwrite))
+
+
+def cmd_sync(a: argparse.Namespace) -> None:
+    from ltmstore.sync import sync_acquisition
+
+    r = sync_acquisition(a.acquisition, max_offset=a.max_offset, overwrite=a.overwrite)
+    print(f"time_offset {r['time_offset']:+.4f} s (+- {r['stderr_s'] * 1000:.1f} ms, "
+          f"r2 {r['r2']:.3f}, contrast {r['contrast']:.2f}); wrote {r['acquisition']}")
 
 
 def cmd_ingest(a: argparse.Namespace) -> None:
@@ -82,7 +149,7 @@ def cmd_relight(a: argparse.Namespace) -> None:
     ds = open_store(a.store)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LightClampWarning)
-        images = relight(ds, np.array(a.light)).sum("light").values[None]
+        images = relight(ds, np.array(a.light), view=a.view).sum("light").values[None]
     for w in caught:
         print(f"ltm: warning: {w.message}", file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
@@ -121,9 +188,58 @@ def cmd_bench(a: argparse.Namespace) -> None:
 
 
 def cmd_info(a: argparse.Namespace) -> None:
+    from ltmstore.provenance import store_summary
     from ltmstore.store import open_group
 
-    _print_json(open_group(a.store).attrs.asdict())
+    _print_json(open_group(a.store).attrs.asdict() if a.raw else store_summary(a.store))
+
+
+def _archive_params(a: argparse.Namespace):
+    from ltmstore.archive import ArchiveParams
+    from ltmstore.dims import parse_lattice
+
+    if a.tile < 1:
+        raise LtmError(f"--tile {a.tile!r} must be a positive whole number of pixels")
+    return ArchiveParams(lattice=parse_lattice(a.lattice) if a.lattice else None,
+                         delta_rs=a.delta_rs, method=a.method, auto=not a.no_auto, tile=a.tile)
+
+
+def _flow_params(a: argparse.Namespace) -> dict:
+    p = _archive_params(a)
+    return {"lattice": None if p.lattice is None else list(p.lattice), "delta_rs": p.delta_rs,
+            "method": p.method, "auto": p.auto, "tile": p.tile,
+            "max_concurrent": a.max_concurrent, "scheduler": a.scheduler}
+
+
+def cmd_archive_status(a: argparse.Namespace) -> None:
+    from ltmstore.archive import archive_status, format_status
+
+    entries = archive_status(a.root, _archive_params(a))
+    if a.json:
+        _print_json([e.to_json() for e in entries])
+    else:
+        print(format_status(entries))
+
+
+def cmd_archive_run(a: argparse.Namespace) -> None:
+    params = _flow_params(a)  # bad options fail before Prefect is imported
+    from flows.archive import reprocess_archive
+
+    rows = reprocess_archive(a.root, **params)
+    for r in rows:
+        km = "" if r["K/M"] is None else f"K/M {r['K/M']:.3f}"
+        print(f"{r['acquisition']:<24s} {r['status']:<12s} {km} {r['reason']}".rstrip())
+    failed = [r["acquisition"] for r in rows if r["status"] == "failed"]
+    if failed:
+        raise LtmError(f"{len(failed)} of {len(rows)} acquisition(s) failed: {failed}; "
+                       "see ltm archive status")
+
+
+def cmd_archive_serve(a: argparse.Namespace) -> None:
+    params = _flow_params(a)
+    from flows.archive import serve_archive
+
+    serve_archive(a.root, cron=a.cron, name=a.name, parameters=params)
 
 
 def cmd_demo(a: argparse.Namespace) -> None:
@@ -168,7 +284,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="trajectory length per unit plane area (1/m)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--lossy", action="store_true", help="mp4v .mp4 instead of lossless FFV1 .mkv")
+    p.add_argument("--raw", action="store_true",
+                   help="two-phone raw capture: phone A's video of a ChArUco board, video B, "
+                   "an unknown clock offset and no poses file (see ltm track, ltm sync)")
     p.add_argument("--size", type=int, default=128, help="image side in pixels")
+    p.add_argument("--6d", dest="six_d", action="store_true",
+                   help="6D: camera B moves over a view plane too (view_plane, p, q poses, "
+                   "truth ltm (y, x, r, s, p, q))")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_simulate)
 
@@ -212,6 +334,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("store")
     p.add_argument("--light", type=_light, action="append", required=True,
                    help="R,S light position on the plane; repeat to add lights")
+    p.add_argument("--view", type=_light, default=None, metavar="P,Q",
+                   help="6D stores: camera position on the view plane (default: its centre)")
     p.add_argument("-o", "--output", default="relit.png", help="image file (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_relight)
@@ -236,10 +360,112 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="a small sweep (a minute or two)")
     p.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("info", help="print a store's provenance")
+    p = sub.add_parser("board", help="write a printable ChArUco board and its JSON spec",
+                       description="Write a ChArUco board page (PNG or PDF, true to scale) "
+                       "and OUT.json, its spec for `ltm calibrate` and `ltm track`.")
+    p.add_argument("output", help="OUT.png or OUT.pdf (the spec goes to OUT.json)")
+    p.add_argument("--size", default="A4", help="paper: A0-A5, letter or WxHmm "
+                   "(default: %(default)s, landscape)")
+    p.add_argument("--squares", help="squares NXxNY (default: as many as fit)")
+    p.add_argument("--square-mm", type=_number, help="square side in mm (default: 30, or the "
+                   "largest that fits --squares)")
+    p.add_argument("--dpi", type=int, default=300, help="resolution (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_board)
+
+    p = sub.add_parser("calibrate", help="phone A's camera intrinsics from a video of the board")
+    p.add_argument("video", help="video of the board from varied angles")
+    p.add_argument("--board", required=True, help="board spec JSON from `ltm board`")
+    p.add_argument("-o", "--output", default="intrinsics.json",
+                   help="intrinsics file (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("track", help="light positions (poses.csv) from phone A's video",
+                       description="Detect the board in every frame, estimate phone A's pose, "
+                       "place the LED at its offset and write poses.csv (plane coordinates "
+                       "from the board centre, frame times of video A) plus "
+                       "poses.frames.csv with every frame's status.")
+    p.add_argument("video", help="phone A's video")
+    p.add_argument("--board", required=True, help="board spec JSON from `ltm board`")
+    p.add_argument("--intrinsics", required=True, help="JSON from `ltm calibrate`")
+    p.add_argument("--led-offset", type=_triple, default=(0.0, 0.0, 0.0),
+                   help="LED position from the camera, metres, camera axes (x right, y down, "
+                   "z along the view), e.g. 0.012,0,0")
+    p.add_argument("--height", type=_number, help="plane height for the out-of-plane flag "
+                   "(default: the median LED height)")
+    p.add_argument("--max-reprojection", type=_number, default=1.5,
+                   help="largest RMS reprojection error, px at 1280 wide (default: %(default)s)")
+    p.add_argument("--max-tilt", type=_number, default=20.0,
+                   help="largest tilt from the board normal, degrees (default: %(default)s)")
+    p.add_argument("-o", "--output", default="poses.csv", help="default: %(default)s")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_track)
+
+    p = sub.add_parser("sync", help="estimate the clock offset of poses and video B",
+                       description="Correlate video B's brightness with the tracked light "
+                       "path, and record time_offset with its confidence in acquisition.json "
+                       "(the previous file is kept as acquisition.json.bak).")
+    p.add_argument("acquisition", help="acquisition folder with poses.csv from `ltm track`")
+    p.add_argument("--max-offset", type=_number, default=3.0,
+                   help="search +- this many seconds (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="re-estimate a time_offset that acquisition.json already declares")
+    p.set_defaults(func=cmd_sync)
+
+    p = sub.add_parser("info", help="print a store's provenance",
+                       description="Software version and commit, parameters, input sha256, "
+                       "timings per stage and completion of a store (JSON).")
     p.add_argument("store")
+    p.add_argument("--raw", action="store_true", help="every group attribute as stored")
     p.set_defaults(func=cmd_info)
+
+    _add_archive(sub, DEFAULT_METHOD, METHODS)
     return parser
+
+
+def _add_archive(sub, default_method: str, methods) -> None:
+    archive = sub.add_parser("archive", help="status, run and scheduled reprocessing of an archive",
+                             description="An archive is a ROOT folder of acquisition folders, "
+                             "each with its store NAME.zarr beside it (README: Archives).")
+    verbs = archive.add_subparsers(dest="verb", required=True, metavar="VERB",
+                                   parser_class=_Parser)
+
+    def common(p) -> None:
+        p.add_argument("root", help="archive root folder")
+        grid = p.add_mutually_exclusive_group()
+        grid.add_argument("--lattice", help="RxS cells over the plane (default: automatic)")
+        grid.add_argument("--delta-rs", type=_number, help="cell size in plane units")
+        p.add_argument("--method", default=default_method, choices=sorted(methods))
+        p.add_argument("--no-auto", action="store_true", help="fixed default regularisation")
+        p.add_argument("--tile", type=int, default=32, help="pixel tile side (default: 32)")
+
+    def running(p) -> None:
+        p.add_argument("--max-concurrent", type=int, default=2,
+                       help="acquisitions processed at once (default: %(default)s)")
+        p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
+
+    p = verbs.add_parser("status", help="new / stale / failed / up to date, sizes, timings")
+    common(p)
+    p.add_argument("--json", action="store_true", help="JSON instead of a table")
+    p.set_defaults(func=cmd_archive_status)
+
+    p = verbs.add_parser("run", help="reprocess new, stale and failed acquisitions once",
+                         description="Run the reprocess-archive Prefect flow once (a temporary "
+                         "Prefect server starts when PREFECT_API_URL is not set).")
+    common(p)
+    running(p)
+    p.set_defaults(func=cmd_archive_run)
+
+    p = verbs.add_parser("serve", help="serve reprocess-archive on a cron schedule",
+                         description="Serve the reprocess-archive flow as a deployment with a "
+                         "cron schedule against the Prefect server of PREFECT_API_URL, or one "
+                         "started here with `prefect server start` on 127.0.0.1.")
+    common(p)
+    running(p)
+    p.add_argument("--cron", required=True, help='cron schedule, e.g. "0 2 * * *"')
+    p.add_argument("--name", default="archive", help="deployment name (default: %(default)s)")
+    p.set_defaults(func=cmd_archive_serve)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,7 +36,11 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
             yield client
         return
     n = n_workers or max(1, min(4, os.cpu_count() or 1))
+    # The scheduler's HTTP port on any free port (never a collision warning); worker logs
+    # quiet: a task's error reaches the client, which reports it as one line, so the worker's
+    # own traceback log is noise.
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      dashboard_address=None, env=WORKER_ENV, silence_logs=logging.WARNING
+                      dashboard_address="127.0.0.1:0", env=WORKER_ENV,
+                      silence_logs=logging.CRITICAL
                       ) as cluster, Client(cluster) as client:
         yield client

@@ -44,11 +44,15 @@ def _distances(mask: np.ndarray, geometry: Geometry) -> np.ndarray:
     any_obs = mask.reshape(n, -1).any(axis=1)
     dist = np.full((n, int(np.prod(geometry.shape))), np.inf)
     if any_obs.any():
-        # One Euclidean distance transform over the whole batch: the batch axis is so coarsely
-        # sampled that the nearest observed cell always lies in the same row.
+        # One Euclidean distance transform over the distinct masks of the batch (usually one:
+        # all pixels share the mask): the batch axis is so coarsely sampled that the nearest
+        # observed cell always lies in the same row.
+        rows = mask[any_obs]
+        _, first, inverse = np.unique(np.packbits(rows.reshape(len(rows), -1), axis=1), axis=0,
+                                      return_index=True, return_inverse=True)
         sampling = (_FAR, *(1.0 / s for s in geometry.shape))
-        edt = ndimage.distance_transform_edt(~mask[any_obs], sampling=sampling)
-        dist[any_obs] = edt.reshape(int(any_obs.sum()), -1)
+        edt = ndimage.distance_transform_edt(~rows[first], sampling=sampling)
+        dist[any_obs] = edt.reshape(len(first), -1)[inverse.ravel()]
     return dist
 
 

@@ -188,13 +188,14 @@ class Lattice:
                 "shape": list(self.shape), "deltas": list(self.deltas)}
 
 
-def parse_lattice(text: str) -> tuple[int, int]:
-    """Parse ``--lattice RxS`` (e.g. ``32x32``)."""
+def parse_lattice(text: str) -> tuple[int, ...]:
+    """Parse ``--lattice RxS`` (e.g. ``32x32``), or ``RxSxPxQ`` for a 6D store."""
     parts = text.lower().split("x")
     try:
         shape = tuple(int(p) for p in parts)
     except ValueError:
         shape = ()
-    if len(shape) != 2 or min(shape) < 1:
-        raise LtmError(f"--lattice {text!r} must look like RxS with positive integers, e.g. 32x32")
-    return shape  # type: ignore[return-value]
+    if len(shape) not in (2, 4) or min(shape) < 1:
+        raise LtmError(f"--lattice {text!r} must look like RxS with positive integers, e.g. 32x32"
+                       " (RxSxPxQ for 6D, e.g. 25x25x16x16)")
+    return shape

@@ -4,7 +4,7 @@ Layout written (ARCHITECTURE.md section 3.2), for ``n`` frames of ``H x W`` pixe
 
 * coordinates ``t (t,)`` float64 seconds, ``y (H,)`` and ``x (W,)`` int64, ``channel`` ("cb", "cr");
 * ``frames (t, y, x)`` float32 linear luminance Y (BT.601), chunks
-  ``(chunk_frames, min(H, 256), min(W, 256))``;
+  ``(chunk_frames, min(H, 256), min(W, 256))`` (16 x 16 pixels for registered 6D frames);
 * ``pose_r, pose_s, pose_z (t,)`` float64 light position at each frame (NaN where the pose record
   does not cover the frame), plus ``pose_p, pose_q`` for 6D acquisitions; ``pose_valid (t,)`` bool;
 * ``chroma (y, x, channel)`` float32: ``sum_t Cb / sum_t Y`` and ``sum_t Cr / sum_t Y`` over the
@@ -16,6 +16,13 @@ A frame is rejected (``pose_valid`` False) for the first of these reasons that a
 than the z tolerance from the plane height; default :data:`Z_TOLERANCE_FRACTION` of the height,
 about a 10 % change of irradiance by the inverse-square law) and ``outside_bounds`` (the light is
 outside the plane rectangle, or the camera outside the view plane).
+
+6D acquisitions (``view_plane`` in ``acquisition.json``, ``p, q`` columns in ``poses.csv``)
+whose ``view_plane`` declares camera B (``distance``, ``intrinsics``, ``grid``): every frame is
+registered onto the declared object-plane grid by the plane-induced homography of
+camera B at that frame's interpolated ``(p, q)`` (:mod:`ltmstore.register`), after
+linearisation; grid pixels outside the frame are NaN in ``frames`` (unobserved in that frame),
+and chroma sums skip them.
 """
 
 from __future__ import annotations
@@ -49,6 +56,7 @@ from ltmstore.dims import (
     rgb_to_ycbcr,
 )
 from ltmstore.errors import LtmError
+from ltmstore.register import ViewRig, rectify
 from ltmstore.store import begin_stage, complete_stage, create_variable, new_store, write_coord
 from ltmstore.transfer import decode
 
@@ -56,6 +64,9 @@ STAGE = "ingest"
 ACQUISITION_ATTR = "acquisition"
 DEFAULT_CHUNK_FRAMES = 32
 SPATIAL_CHUNK = 256
+# Registered (6D) frames: small spatial chunks, so that binning reads one pixel tile over the
+# whole time axis at once (a 6D lattice is too large for per-time-block partial sums per tile).
+REGISTERED_SPATIAL_CHUNK = 16
 MIN_VALID_FRAMES = 8
 Z_TOLERANCE_FRACTION = 0.05
 # Measured over seeds 0-2: relief 0.035-0.038, icon 0.019-0.023, canvas 0.070-0.081.
@@ -175,10 +186,17 @@ class FrameSink:
         How code values encode light.
     chunk_frames : int
         Frames per chunk along ``t``.
+    rig : ViewRig, optional
+        6D: register every frame onto the rig's object grid (:func:`ltmstore.register.rectify`)
+        at the camera position given to :meth:`add`.
     """
 
-    def __init__(self, group: zarr.Group, *, transfer: str, chunk_frames: int) -> None:
+    def __init__(self, group: zarr.Group, *, transfer: str, chunk_frames: int,
+                 rig: ViewRig | None = None) -> None:
         self._group = group
+        self._rig = rig
+        self._raw_shape: tuple[int, ...] | None = None
+        self.observed = [0.0, 0]  # sum over valid frames of the observed grid fraction, count
         self._lut = transfer_lut(transfer)
         self._chunk_frames = _positive_int(chunk_frames, "chunk_frames")
         self._frames: zarr.Array | None = None
@@ -195,18 +213,29 @@ class FrameSink:
         """``(H, W)`` of the frames (``(0, 0)`` before the first frame)."""
         return self._sums.shape[1:]
 
-    def add(self, rgb8: np.ndarray, valid: bool, *, source: str) -> None:
-        """Append one ``(H, W, 3)`` uint8 RGB frame; ``valid`` frames count towards chroma."""
-        if self._frames is None:
-            self._start(rgb8.shape[:2])
-        if rgb8.shape != (*self.shape, 3):
+    def add(self, rgb8: np.ndarray, valid: bool, *, source: str,
+            view: tuple[float, float] | None = None) -> None:
+        """Append one ``(H, W, 3)`` uint8 RGB frame; ``valid`` frames count towards chroma.
+
+        With a rig, ``view = (p, q)`` is the camera position of the frame (NaN: unknown).
+        """
+        if self._raw_shape is None:
+            self._raw_shape = rgb8.shape[:2]
+        if rgb8.shape != (*self._raw_shape, 3):
             raise LtmError(f"{source} is {rgb8.shape[1]}x{rgb8.shape[0]} pixels; expected "
-                           f"{self.shape[1]}x{self.shape[0]} like the first frame")
+                           f"{self._raw_shape[1]}x{self._raw_shape[0]} like the first frame")
         ycc = rgb_to_ycbcr(self._lut[rgb8])
+        if self._rig is not None:
+            ycc = rectify(ycc, self._rig, *(view if view is not None else (np.nan, np.nan)))
+            if valid:
+                self.observed[0] += float(np.isfinite(ycc[..., 0]).mean())
+                self.observed[1] += 1
+        if self._frames is None:
+            self._start(ycc.shape[:2])
         self._buffer[self._pending] = ycc[..., 0]
         self._chroma_buffer[:, self._pending] = np.moveaxis(ycc[..., 1:], -1, 0)
         if valid:
-            ycc = np.moveaxis(ycc, -1, 0)
+            ycc = np.moveaxis(ycc if self._rig is None else np.nan_to_num(ycc), -1, 0)
             self._sums += ycc
             self._moments += [ycc[0] ** 2, ycc[1] * ycc[0], ycc[2] * ycc[0], ycc[1] ** 2,
                               ycc[2] ** 2]
@@ -264,7 +293,8 @@ class FrameSink:
         )
 
     def _spatial_chunks(self) -> tuple[int, int]:
-        return tuple(min(n, SPATIAL_CHUNK) for n in self.shape)
+        side = SPATIAL_CHUNK if self._rig is None else REGISTERED_SPATIAL_CHUNK
+        return tuple(min(n, side) for n in self.shape)
 
     def _flush(self) -> None:
         if self._pending:
@@ -404,36 +434,63 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         raise LtmError(f"{str(acq.poses)}: acquisition.json declares a view_plane but the poses "
                        "have no p, q columns; expected header 't,r,s,z,p,q'")
     z_tolerance = _z_tolerance(z_tolerance, acq.plane)
+    rig = _rig(acq)
     light = partial(lights_at, poses=poses, plane=acq.plane, z_tolerance=z_tolerance,
                     time_offset=acq.time_offset, view_plane=acq.view_plane)
     with VideoReader(acq.video) as video, new_store(store, overwrite=overwrite) as group:
         begin_stage(group, STAGE)
-        sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames)
+        sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames, rig=rig)
         hashes = {"video": sha256_file(acq.video), "poses": sha256_file(acq.poses)}
         hashed = time.perf_counter()
         bar = tqdm(video, total=video.frame_count, disable=not progress, unit="frame",
                    desc="ingest")
         for i, rgb in enumerate(bar):
-            valid = bool(light(np.array([i / video.fps])).valid[0])
-            sink.add(rgb, valid, source=f"video {str(acq.video)!r} frame {i}")
+            at = light(np.array([i / video.fps]))
+            view = None
+            if rig is not None:
+                _check_frame_size(rgb, rig, acq.video)
+                view = (float(at.view["p"][0]), float(at.view["q"][0]))
+            sink.add(rgb, bool(at.valid[0]), source=f"video {str(acq.video)!r} frame {i}",
+                     view=view)
         t = np.arange(sink.n) / video.fps
         timings = {"setup": round(hashed - started, 3),
                    "frames": round(time.perf_counter() - hashed, 3)}
         info = {"fps": video.fps, "frame_size": list(sink.shape), "z_tolerance": z_tolerance,
                 "time_offset": acq.time_offset, "chunk_frames": chunk_frames, "timings": timings}
-        provenance = _provenance(acq, hashes, video, sink)
+        if rig is not None:
+            info["registration"] = {
+                "camera_frame_size": [rig.intrinsics.height, rig.intrinsics.width],
+                "observed_fraction_mean": sink.observed[0] / max(sink.observed[1], 1)}
+        provenance = _provenance(acq, hashes, video, sink, rig)
         record = finish_ingest(group, sink, t, light(t), acquisition=provenance, info=info,
                                started=started)
     return {**record, "store": str(store)}
 
 
-def _provenance(acq: Acquisition, hashes: dict, video: VideoReader, sink: FrameSink) -> dict:
+def _rig(acq: Acquisition) -> ViewRig | None:
+    """Camera B of a 6D acquisition, when ``view_plane`` declares one (else the frames are taken
+    as already registered on the object grid)."""
+    view = acq.raw.get("view_plane")
+    if acq.view_plane is None or not any(k in view for k in ("distance", "intrinsics", "grid")):
+        return None
+    return ViewRig.from_json(view, f"{acq.folder / 'acquisition.json'}: view_plane")
+
+
+def _check_frame_size(rgb: np.ndarray, rig: ViewRig, video: Path) -> None:
+    k = rig.intrinsics
+    if rgb.shape[:2] != (k.height, k.width):
+        raise LtmError(f"video {str(video)!r} frames are {rgb.shape[1]}x{rgb.shape[0]} pixels; "
+                       f"view_plane intrinsics declare {k.width}x{k.height}")
+
+
+def _provenance(acq: Acquisition, hashes: dict, video: VideoReader, sink: FrameSink,
+                rig: ViewRig | None = None) -> dict:
     meta = {"source": "video", "folder": str(acq.folder), "video": acq.raw["video"],
             "poses": acq.raw["poses"], "sha256": hashes, "plane": acq.plane.to_json(),
             "transfer": acq.transfer, "time_offset": acq.time_offset, "fps": video.fps,
             "frame_size": list(sink.shape)}
     if acq.view_plane is not None:
-        meta["view_plane"] = acq.view_plane
+        meta["view_plane"] = {**acq.view_plane, **(rig.to_json() if rig is not None else {})}
     return meta
 
 

@@ -35,10 +35,18 @@ from ltmstore.dims import (
     Plane,
 )
 from ltmstore.errors import LtmError
-from ltmstore.resample import Binning, bin_frames, bin_positions, path_length
+from ltmstore.resample import (
+    Binning,
+    bin_frames,
+    bin_positions,
+    lattice_6d,
+    path_length,
+    view_positions,
+)
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.select import Choice, choose_params
 
+TILES = "tiles"  # key of the tile completion marks in a tile's outputs
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
 
 
@@ -73,13 +81,17 @@ class TilePlan:
 
 
 def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 32,
-               chunk_bytes: int = 64 * 1024) -> TilePlan:
+               chunk_bytes: int = 64 * 1024, max_block_bytes: int = 64 * 2**20) -> TilePlan:
     """Square pixel tiles of side ``tile`` and lattice chunks of about ``chunk_bytes``.
 
     The lattice is split evenly along every axis (powers of two) until one inner chunk of a
     tile, in float32, is no larger than ``chunk_bytes``: a point-light query then reads one or
-    a few inner chunks per tile instead of the whole shard.
+    a few inner chunks per tile instead of the whole shard. The tile side is halved while one
+    tile of whole LTFs would exceed ``max_block_bytes`` (6D lattices: a solver holds several
+    copies of its tile).
     """
+    while tile > 1 and 4 * tile * tile * int(np.prod(lattice)) > max_block_bytes:
+        tile = -(-tile // 2)
     tile_yx = (min(tile, image[0]), min(tile, image[1]))
     chunk = list(lattice)
     while 4 * np.prod(tile_yx) * np.prod(chunk) > chunk_bytes and max(chunk) > 1:
@@ -125,6 +137,8 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
     record = {"seconds": time.perf_counter() - start, "params": choice.params,
               "heldout": choice.errors}
+    ty, tx = block_info[0]["chunk-location"][:2]
+    out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
     result = np.empty((1, 1), dtype=object)
     result[0, 0] = record
     return result
@@ -153,7 +167,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                 lattice: tuple[int, int] | None = None, delta_rs: float | None = None,
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
                 color: bool | None = None, tile: int = 32, overwrite: bool = False,
-                progress: bool = True) -> dict:
+                resume: bool = True, progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store, in place.
 
     Parameters
@@ -181,11 +195,15 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         Pixel tile side: the unit of work and the ``ltm`` shard.
     overwrite : bool
         Recompute an existing ``ltm``.
+    resume : bool
+        When an earlier run of the same parameters and software was interrupted (stage
+        ``reconstruct`` incomplete, its samples complete), solve only the tiles it did not
+        finish (``tiles_solved`` counts them, ``tiles_resumed`` the ones kept).
 
     Returns
     -------
     dict
-        What was done: lattice, K/M, path density, timings.
+        What was done: lattice, K/M, path density, tiles solved and resumed, timings.
     """
     if lattice is not None and delta_rs is not None:
         raise LtmError("give either --lattice or --delta-rs, not both")
@@ -194,6 +212,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     get_method(method)
     group = st.open_group(path, mode="r+")
     st.require_stage(group, "ingest", path)
+    st.check_writable(path)
     if st.stages(group).get("reconstruct", {}).get("complete") and not overwrite:
         raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute it")
     if color is None:
@@ -202,11 +221,28 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
                        "ingest it again with this version")
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
-               auto=auto, color=color, tile=tile, progress=progress)
-    if client is not None:
-        return _reconstruct(group, client, **run)
-    with dask_client(scheduler) as own:
-        return _reconstruct(group, own, **run)
+               auto=auto, color=color, tile=tile, progress=progress, resume=resume)
+    try:
+        if client is not None:
+            return _reconstruct(group, client, **run)
+        with dask_client(scheduler) as own:
+            return _reconstruct(group, own, **run)
+    except OSError as exc:  # a full disk, a store made read-only during the run
+        raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}; its "
+                       "reconstruct stage stays incomplete") from exc
+
+
+def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: bool,
+            tile: int) -> dict:
+    """Everything that shapes the ``ltm`` (with the software): equal keys, equal results."""
+    from ltmstore.provenance import software
+
+    soft = software()
+    return json.loads(json.dumps({
+        "lattice": None if lattice is None else [int(n) for n in lattice],
+        "delta_rs": delta_rs, "method": method, "params": params, "auto": bool(auto),
+        "color": bool(color), "tile": int(tile),
+        "software": soft["version"]}, sort_keys=True, default=str))
 
 
 def _pick_lattice(plane: Plane, r, s, valid, lattice, delta_rs) -> tuple[Lattice, str]:
@@ -217,31 +253,61 @@ def _pick_lattice(plane: Plane, r, s, valid, lattice, delta_rs) -> tuple[Lattice
     return choose_lattice(plane, r, s, valid), "automatic"
 
 
+def _resumable(group: zarr.Group, key: dict, names: list[str], plan: TilePlan) -> bool:
+    """Whether an interrupted run of the same ``key`` left complete samples and tile marks."""
+    entry = st.stages(group)
+    rec, res = entry.get("reconstruct") or {}, entry.get("resample") or {}
+    if rec.get("complete") or not res.get("complete") or rec.get("run") != key:
+        return False
+    ntiles = tuple(-(-n // t) for n, t in zip(plan.image, plan.tile, strict=True))
+    return all(n in group for n in names) and all(
+        group[tiles_name(n)].shape == ntiles if tiles_name(n) in group else False
+        for n in names if n in (LTM, *CHROMA_LTM.values())) and (
+        group[SAMPLES].shape == (*plan.image, *plan.lattice))
+
+
+def tiles_name(variable: str) -> str:
+    """The per-tile completion marks of an LTM variable (removed when the stage completes)."""
+    return f"{variable}_tiles_done"
+
+
 def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
-                 params: dict, auto: bool, color: bool, tile: int, progress: bool) -> dict:
+                 params: dict, auto: bool, color: bool, tile: int, progress: bool,
+                 resume: bool) -> dict:
     plane = Plane.from_json(group.attrs["acquisition"]["plane"])
     r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     timings = {}
     start = time.perf_counter()
-    lat, chosen = _pick_lattice(plane, r, s, valid, lattice, delta_rs)
-    binning = bin_positions(lat, (r, s), valid)
+    positions = view_positions(group, r, s)  # (r, s), or (r, s, p, q) in 6D
+    lat, chosen = (_pick_lattice(plane, r, s, valid, lattice, delta_rs) if len(positions) == 2
+                   else lattice_6d(plane, group.attrs["acquisition"]["view_plane"], positions,
+                                   valid, shape=lattice, delta=delta_rs))
+    binning = bin_positions(lat, positions, valid)
     if binning.k == 0:
         raise LtmError(f"no valid frame falls on the {lat.shape} lattice")
     frames = da.from_zarr(group["frames"])
     plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile)
+    key = run_key(lattice=lattice, delta_rs=delta_rs, method=method, params=params, auto=auto,
+                  color=color, tile=tile)
+    ltm_names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]
+    sample_names = [SAMPLES, *(CHROMA_SAMPLES[c] for c in CHROMA_CHANNELS if color)]
+    if resume and _resumable(group, key, [*sample_names, *ltm_names, EXPECTED_ERROR,
+                                          UNSUPPORTED], plan):
+        return _solve_stage(group, client, binning, plan, plane, chosen, key, r, s, valid,
+                            method=method, params=params, auto=auto, color=color,
+                            progress=progress, timings={"resample_s": 0.0}, resumed=True)
 
     st.begin_stage(group, "resample")
-    st.begin_stage(group, "reconstruct")
+    st.begin_stage(group, "reconstruct", {"run": key})
     for name in (*st.STAGE_VARIABLES["resample"], *st.STAGE_VARIABLES["reconstruct"]):
         if name in group:  # an earlier run's output, possibly on another lattice
             del group[name]
     _write_lattice(group, binning)
-    samples = _write_samples(group, SAMPLES, frames, binning, plan, client)
-    channels = {}
+    _write_samples(group, SAMPLES, frames, binning, plan, client)
     if color:
         chroma = da.from_zarr(group[FRAME_CHROMA])
-        channels = {c: _write_samples(group, CHROMA_SAMPLES[c], chroma[i], binning, plan, client)
-                    for i, c in enumerate(CHROMA_CHANNELS)}
+        for i, c in enumerate(CHROMA_CHANNELS):
+            _write_samples(group, CHROMA_SAMPLES[c], chroma[i], binning, plan, client)
     density = path_length(r, s, valid=valid) / plane.area
     sampling = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k,
                 "M": binning.m, "sampling_ratio": binning.ratio, "path_density": density}
@@ -249,45 +315,99 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
         **sampling, "frames_used": int((binning.cell >= 0).sum())})
     timings["resample_s"] = time.perf_counter() - start
 
+    ntiles = tuple(-(-n // t) for n, t in zip(plan.image, plan.tile, strict=True))
+    for name in ltm_names:
+        st.create_variable(group, name, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
+                           chunks=plan.chunks, shards=plan.shards)
+        st.create_variable(group, tiles_name(name), ("tile_y", "tile_x"), ntiles,
+                           chunks=(1, 1), dtype=str, fill_value="")
+    st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
+    st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image, chunks=plan.tile, dtype=bool,
+                       fill_value=True)
+    return _solve_stage(group, client, binning, plan, plane, chosen, key, r, s, valid,
+                        method=method, params=params, auto=auto, color=color,
+                        progress=progress, timings=timings, resumed=False)
+
+
+def _solve_stage(group: zarr.Group, client: Client, binning: Binning, plan: TilePlan,
+                 plane: Plane, chosen: str, key: dict, r, s, valid, *, method: str,
+                 params: dict, auto: bool, color: bool, progress: bool, timings: dict,
+                 resumed: bool) -> dict:
+    """Solve every tile not yet marked done (all of them in a fresh run); complete the stage."""
+    lat = binning.lattice
     start = time.perf_counter()
-    out = {LTM: st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
-                                   chunks=plan.chunks, shards=plan.shards),
-           EXPECTED_ERROR: st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image,
-                                              chunks=plan.tile),
-           UNSUPPORTED: st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image,
-                                           chunks=plan.tile, dtype=bool, fill_value=True)}
     geometry = Geometry(lattice=lat, height=plane.height)
-    records = _solve_tiles(samples, out, plan, geometry, method, params, auto, client, progress)
-    for c, chroma_samples in channels.items():  # the colour LTM: same method, default params
-        chroma_out = {LTM: st.create_variable(group, CHROMA_LTM[c], ("y", "x", *lat.dims),
-                                              (*plan.image, *lat.shape), chunks=plan.chunks,
-                                              shards=plan.shards)}
-        _solve_tiles(chroma_samples, chroma_out, plan, geometry, method, params, False, client,
-                     progress)
+    out = {LTM: group[LTM], EXPECTED_ERROR: group[EXPECTED_ERROR],
+           UNSUPPORTED: group[UNSUPPORTED], TILES: group[tiles_name(LTM)]}
+    records, solved = _solve_tiles(group[SAMPLES], out, plan, geometry, method, params, auto,
+                                   client, progress)
+    for c in CHROMA_CHANNELS if color else ():  # the colour LTM: same method, default params
+        chroma_out = {LTM: group[CHROMA_LTM[c]], TILES: group[tiles_name(CHROMA_LTM[c])]}
+        solved += _solve_tiles(group[CHROMA_SAMPLES[c]], chroma_out, plan, geometry, method,
+                               params, False, client, progress)[1]
     timings["solve_s"] = time.perf_counter() - start
-    info = {**sampling, "method": method, "params": params, "auto": auto, "color": color,
+    passes = 1 + len(CHROMA_CHANNELS) * bool(color)
+    density = path_length(r, s, valid=valid) / plane.area
+    info = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k, "M": binning.m,
+            "sampling_ratio": binning.ratio, "path_density": density, "method": method,
+            "params": params, "auto": auto, "color": color, "run": key,
             "chosen_per_tile": summarise_choices(records), "plan": asdict(plan),
-            "timings": timings,
+            "heldout_error": _mean_heldout(records), "tiles_total": plan.n_tiles * passes,
+            "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
+            "resumed": resumed, "timings": timings,
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
+    for name in [LTM, *CHROMA_LTM.values()]:
+        if tiles_name(name) in group:
+            del group[tiles_name(name)]
     st.complete_stage(group, "reconstruct", info)
     return info
 
 
+def _mean_heldout(records: list[dict]) -> float | None:
+    """Mean over tiles of the held-out relative error of the chosen parameters."""
+    errors = []
+    for rec in records:
+        chosen = rec["params"]
+        for value, error in (rec.get("heldout") or {}).items():
+            if any(str(v) == str(value) for v in chosen.values()):
+                errors.append(error)
+    return float(np.mean(errors)) if errors else None
+
+
 def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], plan: TilePlan,
                  geometry: Geometry, method: str, params: dict, auto: bool, client: Client,
-                 progress: bool) -> list[dict]:
-    """Run one Dask task per pixel tile; return each tile's record."""
+                 progress: bool) -> tuple[list[dict], int]:
+    """Run one Dask task per pixel tile not yet marked done in ``out[TILES]``.
+
+    Returns every tile's record (earlier runs' from their marks) and how many were solved now.
+    """
+    marks = _read_marks(out[TILES])
     tiles = da.from_zarr(samples, chunks=plan.block)
     records = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
                                geometry=geometry, auto=auto,
                                drop_axis=list(range(2, tiles.ndim)), chunks=(1, 1), dtype=object)
-    futures = client.compute(list(records.to_delayed().ravel()))
-    done = []
+    todo = marks == ""
+    futures = client.compute(list(records.to_delayed()[todo]))
+    done = [json.loads(str(m)) for m in marks[~todo]]
     with tqdm(total=len(futures), desc="reconstruct tiles", disable=not progress) as bar:
         for fut in as_completed(futures):
             done.append(fut.result().item())
             bar.update()
-    return done
+    return done, len(futures)
+
+
+def _read_marks(marks: zarr.Array) -> np.ndarray:
+    """The tile marks; a mark a killed process left unreadable counts as not done."""
+    try:
+        return np.asarray(marks[...], dtype=object)
+    except Exception:  # noqa: BLE001 - a torn chunk: read the marks one by one
+        out = np.full(marks.shape, "", dtype=object)
+        for index in np.ndindex(marks.shape):
+            try:
+                out[index] = str(marks[index])
+            except Exception:  # noqa: BLE001
+                pass
+        return out
 
 
 def summarise_choices(records: list[dict]) -> dict:

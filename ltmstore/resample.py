@@ -4,6 +4,12 @@ Each valid frame falls in one lattice cell; a cell's sample is the mean of its f
 kernel). Per block of frames and pixel tile, sorting the frames by cell and summing segments
 gives partial sums; Dask adds the partial sums of all blocks as a tree reduction over time, so
 no more than one block of frames per tile is ever in memory.
+
+6D lattices ``(r, s, p, q)`` come from registered frames in which a pixel may fall outside the
+camera's frame (NaN): each pixel then averages only its own finite values, and its observed
+cells (its per-pixel mask) are those with at least one. Partial sums and counts are kept only
+for the ``K`` cells some frame visits (the lattice has millions of cells, ``K/M`` is small) and
+scattered onto the full lattice at the end.
 """
 
 from __future__ import annotations
@@ -13,7 +19,8 @@ from dataclasses import dataclass
 import dask.array as da
 import numpy as np
 
-from ltmstore.dims import Lattice
+from ltmstore.dims import Lattice, P, Plane, Q, R, S
+from ltmstore.errors import LtmError
 
 
 @dataclass(frozen=True)
@@ -67,6 +74,69 @@ def _block_sums(block: np.ndarray, cells: np.ndarray, *, m: int) -> np.ndarray:
     return out
 
 
+def _block_sums_masked(block: np.ndarray, cells: np.ndarray, *, k: int) -> np.ndarray:
+    """Per-cell sums and finite counts of one block of frames with NaN:
+    ``(t, y, x)`` -> ``(1, y, x, 2 K)`` (sums, then counts), over compact cell indices."""
+    cells = cells[:, 0, 0]
+    used = np.flatnonzero(cells >= 0)
+    out = np.zeros((1, *block.shape[1:], 2 * k), dtype=np.float32)
+    if used.size:
+        order = used[np.argsort(cells[used], kind="stable")]
+        sorted_cells = cells[order]
+        starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+        values = block[order].astype(np.float32)
+        finite = np.isfinite(values)
+        sums = np.add.reduceat(np.where(finite, values, 0), starts, axis=0)
+        counts = np.add.reduceat(finite.astype(np.float32), starts, axis=0)
+        idx = sorted_cells[starts]
+        out[0][..., idx] = np.moveaxis(sums, 0, -1)
+        out[0][..., k + idx] = np.moveaxis(counts, 0, -1)
+    return out
+
+
+def _scatter_means(block: np.ndarray, *, cells: np.ndarray, m: int) -> np.ndarray:
+    """``(y, x, 2 K)`` sums and counts -> ``(y, x, M)`` means, NaN where a pixel has none."""
+    k = len(cells)
+    out = np.full((*block.shape[:-1], m), np.nan, dtype=np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out[..., cells] = block[..., :k] / np.where(block[..., k:] > 0, block[..., k:], np.nan)
+    return out
+
+
+MASKED_BLOCK_BYTES = 256 * 2**20  # frames of one pixel tile binned at once (6D)
+
+
+def bin_frames_masked(frames: da.Array, binning: Binning, *, block_frames: int = 512,
+                      tile: tuple[int, int] = (32, 32)) -> da.Array:
+    """:func:`bin_frames` for frames with NaN (unobserved pixels): per-pixel means and masks.
+
+    A 6D lattice has millions of cells, so per-time-block partial sums of every tile would not
+    fit in memory together. Instead each task takes one pixel tile over (up to
+    :data:`MASKED_BLOCK_BYTES` of) the whole time axis, the tile being the frames' own spatial
+    chunk when it is no larger than ``tile`` (registered frames are stored in small spatial
+    chunks), and keeps sums and counts only for the ``K`` visited cells. Memory per task: the
+    tile's frames, a ``(tile, 2 K)`` partial and its ``(tile, M)`` means.
+    """
+    chunk = frames.chunksize[1:]
+    tile = tuple(c if c <= t else t for c, t in zip(chunk, tile, strict=True))
+    per_frame = 4 * int(np.prod(tile))
+    block_frames = max(block_frames, min(frames.shape[0], MASKED_BLOCK_BYTES // per_frame))
+    frames = frames.rechunk((block_frames, *tile))
+    visited = np.flatnonzero(binning.count.reshape(-1) > 0)
+    compact = np.full(binning.m, -1, dtype=np.int64)
+    compact[visited] = np.arange(len(visited))
+    cell = np.where(binning.cell >= 0, compact[np.maximum(binning.cell, 0)], -1)
+    k = max(len(visited), 1)
+    cells = da.from_array(cell[:, None, None], chunks=(frames.chunks[0], 1, 1))
+    partial = da.map_blocks(_block_sums_masked, frames, cells, k=k, new_axis=3,
+                            chunks=((1,) * frames.numblocks[0], *frames.chunks[1:], (2 * k,)),
+                            dtype=np.float32)
+    sums = partial.sum(axis=0, split_every=8) if frames.numblocks[0] > 1 else partial[0]
+    means = sums.map_blocks(_scatter_means, cells=visited, m=binning.m,
+                            chunks=(*sums.chunks[:2], (binning.m,)), dtype=np.float32)
+    return means.reshape(*frames.shape[1:], *binning.lattice.shape)
+
+
 def bin_frames(frames: da.Array, binning: Binning, *, block_frames: int = 512,
                tile: tuple[int, int] = (32, 32)) -> da.Array:
     """Mean of the frames in each cell, NaN where none: lazy ``(y, x, *lattice)`` float32.
@@ -80,8 +150,11 @@ def bin_frames(frames: da.Array, binning: Binning, *, block_frames: int = 512,
     frames : dask.array.Array
         ``(t, y, x)`` linear luminance.
     binning : Binning
-        The cell of every frame (``-1`` = not used).
+        The cell of every frame (``-1`` = not used). A lattice with view axes (6D) bins
+        registered frames: see :func:`bin_frames_masked`.
     """
+    if len(binning.lattice.shape) > 2:
+        return bin_frames_masked(frames, binning, block_frames=block_frames, tile=tile)
     frames = frames.rechunk((block_frames, *tile), method="tasks")  # splits: no P2P shuffle
     cells = da.from_array(binning.cell[:, None, None], chunks=(frames.chunks[0], 1, 1))
     partial = da.map_blocks(_block_sums, frames, cells, m=binning.m, new_axis=3,
@@ -102,3 +175,63 @@ def path_length(*positions: np.ndarray, valid: np.ndarray | None = None) -> floa
         valid = np.asarray(valid, bool)
         steps = steps[valid[1:] & valid[:-1]]
     return float(np.nansum(steps))
+
+
+TARGET_RATIO_6D = 0.165  # the paper's 6D sampling ratio; the automatic 6D lattice aims at it
+VIEW_TO_LIGHT_CELLS = 0.64  # view cells per light cell along a side (the paper: 16 / 25)
+
+
+def view_positions(group, r: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``(r, s)``, or ``(r, s, p, q)`` when the store holds camera positions (6D)."""
+    if "pose_p" in group and "pose_q" in group:
+        return r, s, group["pose_p"][:], group["pose_q"][:]
+    return r, s
+
+
+def lattice_6d(plane: Plane, view_plane: dict, positions: tuple[np.ndarray, ...],
+               valid: np.ndarray, *, shape: tuple[int, ...] | None = None,
+               delta: float | None = None, target_ratio: float = TARGET_RATIO_6D,
+               max_cells: int = 32) -> tuple[Lattice, str]:
+    """The ``(r, s, p, q)`` lattice of a 6D store: given, from a cell size, or automatic.
+
+    Parameters
+    ----------
+    plane : Plane
+        The illumination plane.
+    view_plane : dict
+        ``{"p": [min, max], "q": [min, max], ...}`` from the acquisition.
+    positions : tuple of ndarray
+        ``(r, s, p, q)`` per frame.
+    valid : ndarray of bool
+    shape : tuple of int, optional
+        ``(R, S, P, Q)`` cells.
+    delta : float, optional
+        Cell size on both planes.
+    target_ratio : float
+        Automatic choice: the finest lattice ``(n, n, m, m)``, ``m = VIEW_TO_LIGHT_CELLS n``,
+        whose ``K / M`` reaches this.
+
+    Returns
+    -------
+    (Lattice, str)
+        The lattice and ``"user"`` or ``"automatic"``.
+    """
+    bounds = (plane.r, plane.s, tuple(view_plane["p"]), tuple(view_plane["q"]))
+    dims = (R, S, P, Q)
+    if shape is not None:
+        if len(tuple(shape)) != 4:
+            raise LtmError(f"--lattice {'x'.join(map(str, shape))} has {len(tuple(shape))} "
+                           "axes; a 6D store needs RxSxPxQ, e.g. 25x25x16x16")
+        return Lattice(bounds=bounds, shape=tuple(int(n) for n in shape), dims=dims), "user"
+    if delta is not None:
+        if not (np.isfinite(delta) and delta > 0):
+            raise LtmError(f"--delta-rs {delta!r} must be a positive number (plane units)")
+        cells = tuple(max(1, int(round((hi - lo) / delta))) for lo, hi in bounds)
+        return Lattice(bounds=bounds, shape=cells, dims=dims), "user"
+    lattice = None
+    for n in range(max_cells, 3, -1):
+        m = max(2, int(round(VIEW_TO_LIGHT_CELLS * n)))
+        lattice = Lattice(bounds=bounds, shape=(n, n, m, m), dims=dims)
+        if bin_positions(lattice, positions, valid).ratio >= target_ratio:
+            break
+    return lattice, "automatic"

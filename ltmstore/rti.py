@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from ltmstore.acquisition import resolve_inside, sha256_file
+from ltmstore.acquisition import is_file, resolve_inside, sha256_file
 from ltmstore.dims import Plane
 from ltmstore.errors import LtmError
 from ltmstore.ingest import DEFAULT_CHUNK_FRAMES, STAGE, FrameSink, Lights, finish_ingest
@@ -27,6 +27,8 @@ from ltmstore.store import begin_stage, new_store
 # Default plane half-extent in units of the height: every light above atan(1/2) ~ 26.6 degrees of
 # elevation lands inside the square, every light below atan(1/(2 sqrt 2)) ~ 19.5 degrees outside.
 EXTENT_PER_HEIGHT = 2.0
+MAX_IMAGE_PIXELS = 100_000_000  # a declared image size above this is refused before decoding
+MAX_LP_BYTES = 16 * 1024 * 1024  # a light file is a few kB; refuse anything this large
 
 
 def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
@@ -63,17 +65,27 @@ def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     for number, text in entries:
         name, direction = _entry(path, number, text)
         image = resolve_inside(path.parent, name, f"{str(path)} line {number}: image")
-        if not image.is_file():
+        if not is_file(image):
             raise LtmError(f"{str(path)} line {number}: image {name!r} does not exist")
         names.append(name)
         directions.append(direction)
     directions = np.array(directions, dtype=np.float64)
-    return names, directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    directions /= np.abs(directions).max(axis=1, keepdims=True)  # no overflow in the norm
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    flat = ~(directions[:, 2] > 0)  # lz so small beside lx, ly that it rounds to 0
+    if flat.any():
+        number, text = entries[int(np.argmax(flat))]
+        raise LtmError(f"{str(path)} line {number}: {text!r} points at the horizon (lz is "
+                       "negligible beside lx, ly); expected a light above the object")
+    return names, directions
 
 
 def _lines(path: Path) -> list[tuple[int, str]]:
     """Numbered non-blank lines, stripped."""
     try:
+        if path.stat().st_size > MAX_LP_BYTES:
+            raise LtmError(f"light file {str(path)!r} is {path.stat().st_size} bytes; expected "
+                           f"a text file of at most {MAX_LP_BYTES} bytes")
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise LtmError(f"light file {str(path)!r} cannot be read: {exc.strerror}") from exc
@@ -176,6 +188,26 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *, height: 
     return {**record, "store": str(store)}
 
 
+def _declared_size(data: bytes, name: str) -> tuple[int, int]:
+    """Width and height from the image header (Pillow reads the header only); (0, 0) when
+    Pillow does not know the format (OpenCV then decides)."""
+    import io
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(data)) as image:
+                return image.size
+    except Image.DecompressionBombError as exc:
+        raise LtmError(f"image {name!r} declares too many pixels ({exc}); expected at most "
+                       f"{MAX_IMAGE_PIXELS} pixels") from exc
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
+        return 0, 0
+
+
 def _plane(height: float, extent: float | None) -> Plane:
     if not (np.isfinite(height) and height > 0):
         raise LtmError(f"height {height!r} must be a positive number (plane units)")
@@ -186,8 +218,19 @@ def _plane(height: float, extent: float | None) -> Plane:
 
 
 def _decode_image(data: bytes, name: str) -> np.ndarray:
-    """Decode one image file's bytes as (H, W, 3) uint8 RGB."""
-    bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    """Decode one image file's bytes as (H, W, 3) uint8 RGB.
+
+    The header's declared size is checked first (:data:`MAX_IMAGE_PIXELS`), so a corrupt or
+    hostile header never makes the decoder allocate gigabytes.
+    """
+    width, height = _declared_size(data, name)
+    if width * height > MAX_IMAGE_PIXELS:
+        raise LtmError(f"image {name!r} declares {width} x {height} pixels; expected at most "
+                       f"{MAX_IMAGE_PIXELS} pixels")
+    try:
+        bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error:  # empty data, or a header declaring more pixels than OpenCV accepts
+        bgr = None
     if bgr is None:
         raise LtmError(f"image {name!r} cannot be decoded (expected a JPEG or PNG file)")
     return bgr[..., ::-1]

@@ -29,7 +29,8 @@ STAGE_VARIABLES = {
     "ingest": ("frames", "frame_chroma", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q",
                "pose_valid", "chroma", "chroma_spread"),
     "resample": ("samples", "count", "samples_cb", "samples_cr"),
-    "reconstruct": ("ltm", "expected_error", "unsupported", "ltm_cb", "ltm_cr"),
+    "reconstruct": ("ltm", "expected_error", "unsupported", "ltm_cb", "ltm_cr",
+                    "ltm_tiles_done", "ltm_cb_tiles_done", "ltm_cr_tiles_done"),
 }
 
 
@@ -139,26 +140,45 @@ def create_variable(
     return arr
 
 
+def check_writable(path: str | os.PathLike) -> None:
+    """Refuse, before any write, a store folder this process cannot write into.
+
+    Tries to create and remove a file there (honest for every user, root included).
+    """
+    probe = Path(path) / f".ltm-write-probe-{os.getpid()}"
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise LtmError(f"store {str(path)!r} is not writable ({exc.strerror or exc}); expected "
+                       "a store folder this user can write") from exc
+
+
 def stages(group: zarr.Group) -> dict:
     """Provenance of every stage recorded in the store."""
     return dict(group.attrs.get(STAGES_ATTR, {}))
 
 
-def begin_stage(group: zarr.Group, stage: str) -> None:
-    """Mark ``stage`` as started (and not complete) before writing any of its arrays."""
+def begin_stage(group: zarr.Group, stage: str, info: dict | None = None) -> None:
+    """Mark ``stage`` as started (and not complete) before writing any of its arrays.
+
+    ``info`` (e.g. the run's parameters, to resume it) is recorded with the mark.
+    """
     st = stages(group)
-    st[stage] = {"complete": False, "started": _now()}
+    st[stage] = {**(info or {}), "complete": False, "started": _now()}
     group.attrs[STAGES_ATTR] = st
 
 
 def complete_stage(group: zarr.Group, stage: str, info: dict) -> None:
     """Record ``info`` for ``stage`` and mark it complete: always the last write of a stage."""
-    from ltmstore import __version__
+    from ltmstore.provenance import software
 
+    soft = software()
     st = stages(group)
     entry = dict(st.get(stage, {}))
     entry.update(info)
-    entry.update({"complete": True, "finished": _now(), "software": f"ltmstore {__version__}"})
+    entry.update({"complete": True, "finished": _now(),
+                  "software": f"ltmstore {soft['version']}", "commit": soft["commit"]})
     st[stage] = entry
     group.attrs[STAGES_ATTR] = st
 

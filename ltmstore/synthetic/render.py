@@ -69,19 +69,37 @@ class _Renderer:
         self.height = np.asarray(scene.height, dtype=np.float64)
         self.pos = np.stack([x, y, self.height])
         self.n = scene.normals()
+        self.alpha2 = np.asarray(scene.roughness, dtype=np.float64) ** 2
+        metallic = np.asarray(scene.metallic, dtype=np.float64)
+        self.kd = np.asarray(scene.albedo) / np.pi * (1 - metallic)[..., None]
+        self.f0 = np.asarray(scene.spec_color, dtype=np.float64)
+        self.h_max = float(self.height.max())
+        self.rows, self.cols = np.indices(self.height.shape, dtype=np.float64)
+        self.set_camera(camera)
+
+    def set_camera(self, camera: PinholeCamera | None) -> None:
+        """Recompute the view-dependent terms (and, for a pinhole, the parallax of the
+        rectified view) for ``camera``."""
+        self.camera = camera
         if camera is None:
             self.v = np.array([0.0, 0.0, 1.0])[:, None, None] * np.ones_like(self.n)
         else:
             to_cam = np.array([camera.p, camera.q, camera.distance])[:, None, None] - self.pos
             self.v = to_cam / np.linalg.norm(to_cam, axis=0)
         self.ndotv = np.sum(self.n * self.v, axis=0)
-        self.alpha2 = np.asarray(scene.roughness, dtype=np.float64) ** 2
-        metallic = np.asarray(scene.metallic, dtype=np.float64)
-        self.kd = np.asarray(scene.albedo) / np.pi * (1 - metallic)[..., None]
-        self.f0 = np.asarray(scene.spec_color, dtype=np.float64)
         self.g1v = _smith_g1(self.ndotv, self.alpha2)
-        self.h_max = float(self.height.max())
-        self.rows, self.cols = np.indices(self.height.shape, dtype=np.float64)
+        self.sight = None if camera is None else _sight_lines(self.scene, self.height, camera)
+
+    def rectified(self, light: np.ndarray, intensity: float = 1.0) -> np.ndarray:
+        """The camera's view resampled onto the object-plane grid (``(H, W, 3)``): grid pixel
+        ``(y, x)`` shows the surface point on the sight line through the plane point ``(X, Y,
+        0)``, so raised features shift with the camera (parallax)."""
+        shaded = self(light, intensity)
+        if self.sight is None:
+            return shaded
+        return np.stack([ndimage.map_coordinates(shaded[..., c], self.sight, order=1,
+                                                 mode="nearest", prefilter=False)
+                         for c in range(shaded.shape[-1])], axis=-1)
 
     def __call__(self, light: np.ndarray, intensity: float = 1.0) -> np.ndarray:
         light = np.asarray(light, dtype=np.float64)
@@ -148,6 +166,28 @@ class _Rays:
         dt, steps = _march_plan(dy, dx, h0, dh, rnd.h_max)
         steps = np.where(lit.ravel(), steps, 0)
         return cls(y0, x0, h0, dy, dx, dh, dt, steps)
+
+
+def _sight_lines(scene: Scene, height: np.ndarray, camera: PinholeCamera,
+                 iterations: int = 3) -> np.ndarray:
+    """Fractional ``(row, col)`` of the surface point seen through each grid pixel, ``(2, H, W)``.
+
+    The sight line from the camera centre ``C = (p, q, d)`` through the plane point ``X'`` meets
+    the surface at height ``h`` at ``X = X' - (h / d) (X' - C_xy)``; ``h`` is found by a few
+    fixed-point steps on the bilinear height field (heights are millimetres, ``d`` decimetres).
+    Occlusion of the surface by itself along the sight line is neglected.
+    """
+    rows, cols = np.indices(height.shape, dtype=np.float64)
+    x, y = scene.pixel_centres()
+    dx = (x - camera.p) / scene.pixel_size  # grid pixels per unit h/d, along +col
+    dy = -(y - camera.q) / scene.pixel_size  # along +row (rows grow downwards)
+    h = height
+    for _ in range(iterations):
+        ratio = h / camera.distance
+        r, c = rows - ratio * dy, cols - ratio * dx
+        h = _height_at(height, r.ravel(), c.ravel()).reshape(height.shape)
+    ratio = h / camera.distance
+    return np.stack([rows - ratio * dy, cols - ratio * dx])
 
 
 def _smith_g1(cos: np.ndarray, a2: np.ndarray) -> np.ndarray:
@@ -283,3 +323,44 @@ def is_occluded(scene: Scene, pixel_yx: tuple[int, int], light) -> bool:
         if _height_at(height, y + t * dy, x + t * dx)[0] > h0 + t * dh + SHADOW_EPS:
             return True
     return False
+
+
+def render_ltm_6d(scene: Scene, lattice: Lattice, height: float, *, distance: float,
+                  intensity: float = 1.0, progress: bool = False) -> np.ndarray:
+    """The 6D ground truth: luminance at every light ``(r, s)`` and camera ``(p, q)`` cell centre.
+
+    Parameters
+    ----------
+    scene : Scene
+    lattice : Lattice
+        A 4-D ``(r, s, p, q)`` lattice: lights at ``(r_i, s_j, height)``, camera centres at
+        ``(p_k, q_l, distance)``.
+    height : float
+        Height of the illumination plane.
+    distance : float
+        Height of the view plane (camera centres).
+    intensity : float
+    progress : bool
+
+    Returns
+    -------
+    ndarray, shape (H, W, R, S, P, Q), float32
+        Linear luminance (BT.601) of the rectified view (:meth:`_Renderer.rectified`).
+    """
+    from ltmstore.dims import LUMA, VIEW_DIMS
+
+    if tuple(lattice.dims) != (*LIGHT_DIMS, *VIEW_DIMS):
+        raise LtmError(f"render_ltm_6d needs an (r, s, p, q) lattice, got dims {lattice.dims}")
+    r, s, p, q = (lattice.centres(i) for i in range(4))
+    out = np.empty((*scene.shape, *lattice.shape), dtype=np.float32)
+    luma = LUMA.astype(np.float32)
+    renderer = _Renderer(scene)
+    bar = tqdm(total=lattice.size, disable=not progress, desc="truth 6D LTM", unit="image")
+    for k, m in np.ndindex(len(p), len(q)):
+        renderer.set_camera(PinholeCamera(p[k], q[m], distance, focal_px=1.0))
+        for i, j in np.ndindex(len(r), len(s)):
+            out[:, :, i, j, k, m] = renderer.rectified(np.array([r[i], s[j], height]),
+                                                       intensity) @ luma
+            bar.update()
+    bar.close()
+    return out

@@ -9,6 +9,14 @@ acquisition folder (ARCHITECTURE.md section 3.1) plus the ground truth ``truth.z
     OUT/poses.csv          the tracker's irregular, noisy reports; t = 0 at the first frame
     OUT/truth.zarr         ltm (y, x, r, s) linear luminance and ltm_rgb (y, x, r, s, color)
 
+A 6D simulation (``view=True``, ``ltm simulate --6d``) also moves camera B: it scribbles over a
+view plane parallel to the object (:data:`VIEW_PLANE`), looking at the object's centre through a
+pinhole (:class:`~ltmstore.register.ViewRig`, declared in ``acquisition.json`` under
+``view_plane``). Each frame is the rectified view of :meth:`render.rectified` (raised features
+shift with the camera: parallax) projected into the camera's frame by the plane-induced
+homography; ``poses.csv`` gains the ``p, q`` columns and ``truth.zarr`` holds the 6D luminance
+LTM ``ltm (y, x, r, s, p, q)`` of the rectified views.
+
 Frames are rendered at the *true* light position (excursions out of the plane included), scaled
 by one exposure constant, given mild sensor noise, clipped and sRGB-encoded. The truth is in the
 same linear units as the frames before encoding (rendered radiance x exposure), i.e. what an
@@ -27,11 +35,32 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from ltmstore.dims import COLOR, COLOR_CHANNELS, LTM, LTM_RGB, LUMA, Lattice, Plane, R, S, X, Y
+from ltmstore.dims import (
+    COLOR,
+    COLOR_CHANNELS,
+    LIGHT_DIMS,
+    LTM,
+    LTM_RGB,
+    LUMA,
+    VIEW_DIMS,
+    Lattice,
+    Plane,
+    R,
+    S,
+    X,
+    Y,
+)
 from ltmstore.errors import LtmError
+from ltmstore.register import Intrinsics, ObjectGrid, ViewRig, render_camera_frame
 from ltmstore.store import complete_stage, create_variable, new_store, write_coord
 from ltmstore.synthetic import writer
-from ltmstore.synthetic.render import iter_frames, render_ltm
+from ltmstore.synthetic.render import (
+    PinholeCamera,
+    _Renderer,
+    iter_frames,
+    render_ltm,
+    render_ltm_6d,
+)
 from ltmstore.synthetic.scenes import Scene, make_scene
 from ltmstore.synthetic.trajectory import (
     Trajectory,
@@ -51,6 +80,26 @@ VIDEO_MARGIN = 0.1  # s: the video starts this long after the hand and stops thi
 TRACKER_NOISE = 0.0003  # m: standard deviation of the tracker noise (the paper: 0.31 mm RMS)
 TRACKER_SKEW = 0.1  # s: the tracker record starts/stops up to this much before/after the video
 OUTPUTS = ("acquisition.json", "poses.csv", "video.mkv", "video.mp4", "truth.zarr")
+# 6D: camera B scribbles over a 20 cm square 45 cm above the object, looking at its centre.
+VIEW_PLANE = Plane(r=(-0.1, 0.1), s=(-0.1, 0.1), height=0.45)
+DEFAULT_LATTICE_6D = (12, 12, 6, 6)
+DEFAULT_PATH_DENSITY_6D = 160.0  # 1/m: K/M near the paper's 0.166 on the default 6D lattice
+SPEED_6D = 0.5  # m/s: mean light speed in 6D (more distinct (light, view) cells per frame)
+VIEW_SPEED = 0.15  # m/s: mean camera speed on the view plane
+CAMERA_FRAME = 1.55  # camera frame side, in object-grid pixels (the object overfills it a bit)
+CAMERA_ZOOM = 1.6  # the object spans this many times its grid size in the central view
+
+
+def view_rig(scene: Scene, view_plane: Plane = VIEW_PLANE) -> ViewRig:
+    """Camera B for a scene: a square frame a bit larger than the object in the central view,
+    looking at the object's centre from the view plane's height."""
+    h, w = scene.shape
+    side = 2 * int(round(CAMERA_FRAME * max(h, w) / 2))  # even: FFV1 and most codecs
+    focal = CAMERA_ZOOM * w * view_plane.height / (w * scene.pixel_size)
+    intr = Intrinsics(fx=focal, fy=focal, cx=(side - 1) / 2, cy=(side - 1) / 2, width=side,
+                      height=side)
+    return ViewRig(intrinsics=intr, distance=view_plane.height,
+                   grid=ObjectGrid((h, w), scene.pixel_size), look_at=(0.0, 0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +119,8 @@ class SimulationPlan:
     frame_count: int
     seed: int
     path_density: float
+    view_plane: Plane | None = None
+    rig: ViewRig | None = None
 
     @property
     def frame_times(self) -> np.ndarray:
@@ -80,15 +131,30 @@ class SimulationPlan:
         """True light positions ``(frame_count, 3)`` at the frame times."""
         return np.column_stack(self.trajectory.at(self.frame_times)[:3])
 
+    def frame_views(self) -> np.ndarray:
+        """True camera positions ``(frame_count, 2)`` at the frame times (6D plans)."""
+        return np.column_stack(self.trajectory.at(self.frame_times)[3:5])
 
-def plan_simulation(*, scene: str = "canvas", path_density: float = DEFAULT_PATH_DENSITY,
+    def sampling_ratio(self) -> float:
+        """``K / M`` of the frames on the truth lattice (4-D for a 6D plan)."""
+        lights = self.frame_lights()[:, :2].T
+        if self.view_plane is None:
+            return sampling_ratio(*lights, self.lattice)
+        cells = self.lattice.cell_index(*lights, *self.frame_views().T)
+        return np.unique(cells[cells >= 0]).size / self.lattice.size
+
+
+def plan_simulation(*, scene: str | Scene = "canvas", path_density: float = DEFAULT_PATH_DENSITY,
                     seed: int = 0, size: int = 128, delta_rs: float | None = None,
-                    lattice: tuple[int, int] = (32, 32), plane: Plane = PLANE) -> SimulationPlan:
+                    lattice: tuple[int, ...] = (32, 32), plane: Plane = PLANE,
+                    view: bool = False, view_plane: Plane = VIEW_PLANE,
+                    view_speed: float = VIEW_SPEED, speed: float = 0.25) -> SimulationPlan:
     """Plan a simulated acquisition (cheap: no rendering). See :func:`simulate_acquisition`."""
     density = check_path_density(path_density)
-    the_scene = make_scene(scene, size=size, seed=seed)
-    grid = _lattice(plane, delta_rs, lattice)
-    path = scribble(plane, path_density=density, seed=seed)
+    the_scene = scene if isinstance(scene, Scene) else make_scene(scene, size=size, seed=seed)
+    grid = _lattice(plane, delta_rs, lattice, view_plane if view else None)
+    path = scribble(plane, path_density=density, seed=seed, speed=speed,
+                    view=view_plane if view else None, view_speed=view_speed)
     video_start = min(VIDEO_MARGIN, path.duration / 4)
     frame_count = int((path.duration - 2 * video_start) * writer.FPS) + 1
     skew = np.random.default_rng([seed, 404]).uniform(-TRACKER_SKEW, TRACKER_SKEW, 2)
@@ -97,10 +163,23 @@ def plan_simulation(*, scene: str = "canvas", path_density: float = DEFAULT_PATH
                     stop=video_stop + skew[1])
     return SimulationPlan(scene=the_scene, plane=plane, lattice=grid, trajectory=path,
                           tracker=tracker, video_start=video_start, frame_count=frame_count,
-                          seed=seed, path_density=density)
+                          seed=seed, path_density=density,
+                          view_plane=view_plane if view else None,
+                          rig=view_rig(the_scene, view_plane) if view else None)
 
 
-def _lattice(plane: Plane, delta_rs: float | None, shape: tuple[int, int]) -> Lattice:
+def _lattice(plane: Plane, delta_rs: float | None, shape: tuple[int, ...],
+             view_plane: Plane | None = None) -> Lattice:
+    if view_plane is not None:
+        if delta_rs is not None:
+            light = Lattice.from_delta(plane, delta_rs)
+            views = Lattice.from_delta(view_plane, delta_rs)
+            shape = (*light.shape, *views.shape)
+        if len(tuple(shape)) != 4 or min(shape) < 1:
+            raise LtmError(f"6D lattice {shape!r} must be four cell counts (R, S, P, Q), "
+                           "e.g. (12, 12, 6, 6)")
+        return Lattice(bounds=(plane.r, plane.s, view_plane.r, view_plane.s),
+                       shape=tuple(int(n) for n in shape), dims=(*LIGHT_DIMS, *VIEW_DIMS))
     if delta_rs is not None:
         return Lattice.from_delta(plane, delta_rs)
     if len(tuple(shape)) != 2:
@@ -108,21 +187,24 @@ def _lattice(plane: Plane, delta_rs: float | None, shape: tuple[int, int]) -> La
     return Lattice.from_plane(plane, shape)
 
 
-def simulate_acquisition(out: str | os.PathLike, *, scene: str = "canvas",
-                         path_density: float = DEFAULT_PATH_DENSITY, seed: int = 0,
+def simulate_acquisition(out: str | os.PathLike, *, scene: str | Scene = "canvas",
+                         path_density: float | None = None, seed: int = 0,
                          lossy: bool = False, size: int = 128, delta_rs: float | None = None,
-                         lattice: tuple[int, int] = (32, 32), plane: Plane = PLANE,
+                         lattice: tuple[int, ...] | None = None, plane: Plane = PLANE,
                          truth: bool = True, overwrite: bool = False,
-                         progress: bool = True) -> dict:
+                         progress: bool = True, view: bool = False,
+                         view_plane: Plane = VIEW_PLANE, view_speed: float = VIEW_SPEED,
+                         speed: float | None = None) -> dict:
     """Simulate a handheld acquisition of a synthetic painting, with its ground truth.
 
     Parameters
     ----------
     out : path
         Output folder (created; must be empty unless ``overwrite``).
-    scene : {"canvas", "icon", "relief"}
-    path_density : float
-        Trajectory length per unit plane area, 1/m (default 27: K/M about 0.29 on 32 x 32).
+    scene : {"canvas", "icon", "relief"} or Scene
+    path_density : float, optional
+        Trajectory length per unit plane area, 1/m (default 27: K/M about 0.29 on 32 x 32;
+        6D: :data:`DEFAULT_PATH_DENSITY_6D`).
     seed : int
     lossy : bool
         Write ``video.mp4`` (mp4v) instead of lossless ``video.mkv`` (FFV1).
@@ -130,8 +212,9 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str = "canvas",
         Image side in pixels.
     delta_rs : float, optional
         Ground-truth lattice cell size; overrides ``lattice``.
-    lattice : (int, int)
-        Ground-truth lattice ``(R, S)`` over the plane.
+    lattice : tuple of int, optional
+        Ground-truth lattice ``(R, S)`` over the plane (default 32 x 32), or ``(R, S, P, Q)``
+        in 6D (default :data:`DEFAULT_LATTICE_6D`).
     plane : Plane
         The illumination plane (default: a 40 cm square 30 cm above the object).
     truth : bool
@@ -141,6 +224,13 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str = "canvas",
         Replace the outputs of an earlier simulation in ``out``.
     progress : bool
         Show progress bars.
+    view : bool
+        A 6D acquisition: camera B moves over ``view_plane`` too (see the module docstring).
+    view_plane : Plane
+        Where camera B moves; its ``height`` is the camera's distance from the object.
+    view_speed, speed : float
+        Mean camera and light speeds (plane units per second); the light's defaults to 0.25
+        (4D) or :data:`SPEED_6D`.
 
     Returns
     -------
@@ -156,8 +246,15 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str = "canvas",
         Unknown scene, non-positive path density, bad lattice, an output folder that is not
         empty (without ``overwrite``) or cannot be written.
     """
+    if path_density is None:
+        path_density = DEFAULT_PATH_DENSITY_6D if view else DEFAULT_PATH_DENSITY
+    if lattice is None:
+        lattice = DEFAULT_LATTICE_6D if view else (32, 32)
+    if speed is None:
+        speed = SPEED_6D if view else 0.25
     plan = plan_simulation(scene=scene, path_density=path_density, seed=seed, size=size,
-                           delta_rs=delta_rs, lattice=lattice, plane=plane)
+                           delta_rs=delta_rs, lattice=lattice, plane=plane, view=view,
+                           view_plane=view_plane, view_speed=view_speed, speed=speed)
     folder = _prepare_folder(Path(out), overwrite=overwrite)
     try:
         return _execute(plan, folder, lossy=lossy, truth=truth, progress=progress)
@@ -168,6 +265,8 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str = "canvas",
 
 def _execute(plan: SimulationPlan, folder: Path, *, lossy: bool, truth: bool,
              progress: bool) -> dict:
+    if plan.view_plane is not None:
+        return _execute_6d(plan, folder, lossy=lossy, truth=truth, progress=progress)
     km = sampling_ratio(*plan.frame_lights()[:, :2].T, plan.lattice)
     if truth:
         ltm = render_ltm(plan.scene, plan.lattice, plan.plane.height, progress=progress)
@@ -193,6 +292,83 @@ def _execute(plan: SimulationPlan, folder: Path, *, lossy: bool, truth: bool,
         paths["truth"] = folder / "truth.zarr"
     return {**info, "frames": n, "duration_s": n / writer.FPS,
             "paths": {k: str(v) for k, v in paths.items()}}
+
+
+def _execute_6d(plan: SimulationPlan, folder: Path, *, lossy: bool, truth: bool,
+                progress: bool) -> dict:
+    km = plan.sampling_ratio()
+    distance = plan.view_plane.height
+    if truth:
+        ltm = render_ltm_6d(plan.scene, plan.lattice, plan.plane.height, distance=distance,
+                            progress=progress)
+        exposure = EXPOSURE_PEAK / float(ltm.max())
+        ltm *= np.float32(exposure)
+        write_truth_6d(folder / "truth.zarr", plan, ltm, exposure=exposure, sampling_ratio=km)
+        del ltm
+    else:
+        coarse = Lattice(bounds=plan.lattice.bounds, dims=plan.lattice.dims,
+                         shape=tuple(max(1, n // 4) for n in plan.lattice.shape))
+        exposure = EXPOSURE_PEAK / float(render_ltm_6d(plan.scene, coarse, plan.plane.height,
+                                                       distance=distance).max())
+    video = folder / writer.video_name(lossy)
+    frames = tqdm(video_frames_6d(plan, exposure=exposure), total=plan.frame_count,
+                  disable=not progress, desc="video", unit="frame")
+    n = writer.write_video(video, frames, fps=writer.FPS)
+    tk = plan.tracker
+    writer.write_poses(folder / "poses.csv", tk.t - plan.video_start, tk.r, tk.s, tk.z, tk.p,
+                       tk.q)
+    info = {**_simulation_info(plan, exposure, km), "view_lattice": list(plan.lattice.shape[2:]),
+            "view_speed_note": "camera B scribbles over view_plane, looking at the object centre"}
+    view_plane = {"p": list(plan.view_plane.r), "q": list(plan.view_plane.s),
+                  **plan.rig.to_json()}
+    writer.write_acquisition_json(folder, video=video.name, plane=plan.plane, transfer="srgb",
+                                  extra={"view_plane": view_plane, "simulation": info})
+    paths = {"folder": folder, "acquisition": folder / "acquisition.json", "video": video,
+             "poses": folder / "poses.csv"}
+    if truth:
+        paths["truth"] = folder / "truth.zarr"
+    return {**info, "frames": n, "duration_s": n / writer.FPS,
+            "paths": {k: str(v) for k, v in paths.items()}}
+
+
+def video_frames_6d(plan: SimulationPlan, *, exposure: float) -> Iterator[np.ndarray]:
+    """Camera B's frames, ``(h, w, 3)`` sRGB uint8: the rectified view at the true light and
+    camera positions, projected into the camera's frame (black around the object), with noise.
+    """
+    rng = np.random.default_rng([plan.seed, 303])
+    renderer = _Renderer(plan.scene)
+    rig = plan.rig
+    for light, (p, q) in zip(plan.frame_lights(), plan.frame_views(), strict=True):
+        renderer.set_camera(PinholeCamera(p, q, rig.distance, rig.intrinsics.fx))
+        rectified = renderer.rectified(light) * np.float32(exposure)
+        linear = render_camera_frame(rectified, rig, p, q).astype(np.float64)
+        sigma = np.sqrt(READ_NOISE**2 + SHOT_NOISE * np.clip(linear, 0.0, None))
+        noisy = linear + sigma * rng.standard_normal(linear.shape)
+        yield encode(noisy, "srgb")
+
+
+def write_truth_6d(path: Path, plan: SimulationPlan, ltm: np.ndarray, *, exposure: float,
+                   sampling_ratio: float) -> None:
+    """Write the 6D ground truth ``ltm (y, x, r, s, p, q)`` (luminance) atomically."""
+    h, w = ltm.shape[:2]
+    dims = plan.lattice.dims
+    with new_store(path, overwrite=True) as group:
+        write_coord(group, Y, np.arange(h))
+        write_coord(group, X, np.arange(w))
+        for name, values in plan.lattice.coords().items():
+            write_coord(group, name, values, units=plan.plane.unit)
+        units = {"units": "linear frame value (rendered radiance x exposure, before sRGB)"}
+        lum = create_variable(group, LTM, (Y, X, *dims), ltm.shape,
+                              chunks=(min(h, 16), min(w, 16), *plan.lattice.shape), attrs=units)
+        lum[...] = ltm
+        info = {"plane": plan.plane.to_json(), "lattice": plan.lattice.to_json(),
+                "view_plane": {"p": list(plan.view_plane.r), "q": list(plan.view_plane.s),
+                               **plan.rig.to_json()},
+                "exposure": exposure, "scene": plan.scene.name, "seed": plan.seed,
+                "path_density": plan.trajectory.path_density(plan.plane),
+                "sampling_ratio": sampling_ratio}
+        group.attrs.update(info)
+        complete_stage(group, "truth", info)
 
 
 def _simulation_info(plan: SimulationPlan, exposure: float, km: float) -> dict:

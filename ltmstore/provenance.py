@@ -1,0 +1,100 @@
+"""Provenance: which software and which parameters made a store, from which inputs, and when.
+
+Every stage record (group attribute ``stages``) holds ``software`` (:func:`software`), its
+parameters, its timings and ``complete``, written last. :func:`summary` gathers them into the
+one record that ``ltm info STORE`` prints and that ``ltm archive status`` compares against the
+current software and the requested parameters.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import subprocess
+from pathlib import Path
+
+from ltmstore.errors import LtmError
+
+STAGE_ORDER = ("ingest", "resample", "reconstruct")
+
+
+@functools.cache
+def commit() -> str | None:
+    """The git commit of the source tree ltmstore runs from (``None`` when not a checkout)."""
+    source = Path(__file__).resolve().parent.parent
+    if not (source / ".git").exists():
+        return None
+    try:
+        out = subprocess.run(["git", "-C", str(source), "rev-parse", "HEAD"], check=True,
+                             capture_output=True, text=True, timeout=10)
+        dirty = subprocess.run(["git", "-C", str(source), "status", "--porcelain",
+                                "--untracked-files=no", "ltmstore"], capture_output=True,
+                               text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    sha = out.stdout.strip()
+    return f"{sha}+dirty" if dirty.stdout.strip() else sha or None
+
+
+def software() -> dict:
+    """``{"name", "version", "commit"}`` of the running ltmstore."""
+    from ltmstore import __version__
+
+    return {"name": "ltmstore", "version": __version__, "commit": commit()}
+
+
+def summary(attrs: dict) -> dict:
+    """A store's provenance from its group attributes.
+
+    Parameters
+    ----------
+    attrs : dict
+        The store's group attributes (``zarr.Group.attrs.asdict()``).
+
+    Returns
+    -------
+    dict
+        ``complete`` (every recorded stage finished and ``reconstruct`` among them),
+        ``software`` (of the last completed stage), ``inputs`` (source, file names, sha256),
+        ``parameters`` (of the reconstruct stage: lattice, method, solver settings, the run
+        key), ``sampling`` (K, M, K/M, path density), ``timings`` (seconds per stage) and
+        ``stages`` (started/finished/complete per stage).
+    """
+    stages = dict(attrs.get("stages") or {})
+    acquisition = dict(attrs.get("acquisition") or {})
+    rec = stages.get("reconstruct") or {}
+    res = stages.get("resample") or {}
+    timings = {}
+    if "seconds" in (stages.get("ingest") or {}):
+        timings["ingest_s"] = stages["ingest"]["seconds"]
+    timings.update(rec.get("timings") or {})
+    last = [stages[n] for n in STAGE_ORDER if (stages.get(n) or {}).get("complete")]
+    sampling = rec if "K" in rec else res
+    return {
+        "complete": bool(rec.get("complete")) and all(e.get("complete")
+                                                       for e in stages.values()),
+        "software": ({"version": last[-1].get("software"), "commit": last[-1].get("commit")}
+                     if last else None),
+        "inputs": {k: acquisition[k] for k in ("source", "folder", "video", "poses", "lp",
+                                               "images", "sha256") if k in acquisition},
+        "parameters": {k: rec[k] for k in ("run", "method", "params", "auto", "color",
+                                           "lattice", "lattice_choice", "plan") if k in rec},
+        "sampling": {k: sampling[k] for k in ("K", "M", "sampling_ratio", "path_density")
+                     if k in sampling},
+        "timings": timings,
+        "stages": {name: {k: e[k] for k in ("complete", "started", "finished", "software",
+                                            "commit", "tiles_solved", "tiles_resumed")
+                          if k in e}
+                   for name, e in stages.items()},
+    }
+
+
+def store_summary(path: str | os.PathLike) -> dict:
+    """:func:`summary` of the store at ``path`` (a clear error when it is not a store)."""
+    from ltmstore.store import open_group
+
+    try:
+        attrs = open_group(path).attrs.asdict()
+    except (OSError, ValueError) as exc:
+        raise LtmError(f"store {str(path)!r} cannot be read: {exc}") from exc
+    return {"store": str(path), **summary(attrs)}

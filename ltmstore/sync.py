@@ -1,0 +1,293 @@
+"""Clock offset between the poses (phone A) and video B: ``ltm sync``.
+
+Video B's brightness is a smooth function of where the light is: a flat diffuse painting lit by
+a point light at ``(r, s, z)`` follows an inverse-square and cosine falloff, and real paintings
+add slow variations on top. For a candidate offset ``tau`` every frame of video B (at time
+``t`` on B's clock) gets the tracked light at ``t - tau`` on the poses' clock, and the mean
+linear brightness of each block of a coarse grid over the image is fitted, by least squares,
+with a low-order polynomial of ``(r, s)``, terms in ``z`` and the falloff ``z / d^3`` of a flat
+diffuse plane at the plane centre (where the painting lies; the polynomial absorbs the rest, so
+no camera geometry is needed). At the true offset the brightness follows the light and the
+residual drops sharply; elsewhere it lags. Two stages: on a grid of half a frame over the whole
+search range, the total brightness is fitted by the rigid physical falloff alone (gain and
+bias: a short stretch of path at a wrong offset cannot be fitted well by it, as it can by the
+flexible model); around that optimum the block model is minimised on a 1 ms grid and by a
+parabola through the minimum (sub-frame). The standard error comes from the curvature of the
+residual, the confidence from how much better the optimum is than the runner-up.
+
+The estimate is written to ``acquisition.json`` as ``time_offset`` (seconds added to the pose
+times, ingest's convention) with a ``time_offset_estimate`` record; the file is replaced
+atomically and its previous version kept as ``acquisition.json.bak``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from ltmstore.acquisition import load_acquisition, load_poses
+from ltmstore.board import video_info
+from ltmstore.errors import LtmError
+
+GRID = 6  # blocks per image side
+DEGREE = 3  # polynomial degree in (r, s)
+DEFAULT_MAX_OFFSET = 3.0  # seconds searched either side
+MIN_R2 = 0.5  # fraction of the brightness variance the light path must explain
+MIN_CONTRAST = 0.3  # 1 - best residual / residual at the runner-up local minimum
+MIN_OVERLAP = 0.5  # fraction of video B that must overlap the poses at an offset
+FINE_STEP = 0.001  # seconds
+FINE_WINDOW = 3  # coarse steps either side of the coarse optimum searched finely
+KERNEL_CENTRES = [(cr, cs) for cr in (-0.05, 0.0, 0.05) for cs in (-0.05, 0.0, 0.05)]  # m
+
+
+def block_brightness(video: str | os.PathLike, transfer: str, *, grid: int = GRID,
+                     progress: bool = True) -> tuple[np.ndarray, float]:
+    """Mean linear brightness of ``grid x grid`` blocks of every frame, ``(n, grid * grid)``,
+    and the frame rate."""
+    import cv2
+
+    from ltmstore.ingest import VideoReader, transfer_lut
+
+    lut = transfer_lut(transfer)
+    rows = []
+    with VideoReader(Path(video)) as reader:
+        fps = reader.fps
+        for rgb in tqdm(reader, total=reader.frame_count, disable=not progress, desc="sync",
+                        unit="frame"):
+            y = lut[cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)]
+            rows.append(cv2.resize(y, (grid, grid), interpolation=cv2.INTER_AREA).ravel())
+    return np.array(rows, dtype=np.float64), fps
+
+
+def _basis(r: np.ndarray, s: np.ndarray, z: np.ndarray, scale: tuple) -> np.ndarray:
+    """Polynomial of ``(r, s)`` up to :data:`DEGREE`, ``dz`` terms and the falloff ``z/d^3``."""
+    (r0, rs), (s0, ss), (z0, zs) = scale
+    u, v, w = (r - r0) / rs, (s - s0) / ss, (z - z0) / zs
+    cols = [u**i * v**j for i in range(DEGREE + 1) for j in range(DEGREE + 1 - i)]
+    cols += [w, w * u, w * v]
+    d2 = r * r + s * s + z * z
+    cols.append(z / d2**1.5 / (1 / z0**2))
+    return np.column_stack(cols)
+
+
+class OffsetCost:
+    """Residual of the brightness fit as a function of the clock offset."""
+
+    def __init__(self, brightness: np.ndarray, fps: float, poses) -> None:
+        self.y = brightness - brightness.mean(axis=0)
+        self.total = self.y.sum(axis=1)
+        self.t = np.arange(len(brightness)) / fps
+        self.poses = poses
+        tp = poses.t
+        gap = np.diff(tp)
+        self.max_gap = max(3 * float(np.median(gap)), 2.5 / fps)
+        self.gaps = gap
+        z = poses.z
+        self.scale = ((float(np.mean(poses.r)), float(np.ptp(poses.r)) / 2 or 1.0),
+                      (float(np.mean(poses.s)), float(np.ptp(poses.s)) / 2 or 1.0),
+                      (float(np.median(z)), max(float(np.ptp(z)) / 2, 1e-3)))
+        self.min_rows = int(MIN_OVERLAP * min(len(self.t), (tp[-1] - tp[0]) * fps))
+        self.n_params = _basis(np.zeros(1), np.zeros(1), np.ones(1), self.scale).shape[1] + 1
+
+    def coarse(self, tau: float) -> float:
+        """Fraction of the total brightness's variance that the physical falloff of a flat
+        diffuse plane leaves unexplained (best of a few centres near the plane centre; one
+        gain and one bias: too rigid to fit a wrong offset well)."""
+        use = self.rows(tau)
+        n = int(use.sum())
+        if n < max(self.min_rows, 3 * self.n_params):
+            return math.inf
+        u = self.t[use] - tau
+        p = self.poses
+        r, s, z = (np.interp(u, p.t, c) for c in (p.r, p.s, p.z))
+        y = self.total[use] - self.total[use].mean()
+        best = 0.0
+        for cr, cs in KERNEL_CENTRES:
+            pred = z / ((r - cr) ** 2 + (s - cs) ** 2 + z * z) ** 1.5
+            pred -= pred.mean()
+            best = max(best, float(pred @ y) ** 2 / max(float(pred @ pred) * float(y @ y),
+                                                       1e-300))
+        return 1 - best
+
+    def rows(self, tau: float) -> np.ndarray:
+        """Frames of video B whose light is known at offset ``tau`` (no long pose gap)."""
+        u = self.t - tau
+        tp = self.poses.t
+        inside = (u >= tp[0]) & (u <= tp[-1])
+        i = np.clip(np.searchsorted(tp, u) - 1, 0, len(self.gaps) - 1)
+        return inside & (self.gaps[i] <= self.max_gap)
+
+    def __call__(self, tau: float) -> tuple[float, int]:
+        """Fraction of brightness variance left unexplained (adjusted for the number of
+        parameters), and frames used."""
+        use = self.rows(tau)
+        n = int(use.sum())
+        if n < max(self.min_rows, 3 * self.n_params):
+            return math.inf, n
+        u = self.t[use] - tau
+        p = self.poses
+        a = _basis(np.interp(u, p.t, p.r), np.interp(u, p.t, p.s), np.interp(u, p.t, p.z),
+                   self.scale)
+        a = np.column_stack([np.ones(n), a])
+        y = self.y[use]
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        resid = y - a @ coef
+        total = np.sum((y - y.mean(axis=0)) ** 2)
+        # adjusted: fewer frames at the search edges must not fit better by having fewer
+        return float(np.sum(resid**2) / (n - a.shape[1]) / max(total / (n - 1), 1e-300)), n
+
+
+def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
+                    max_offset: float = DEFAULT_MAX_OFFSET) -> dict:
+    """Estimate the clock offset ``tau`` (``t_B = t_poses + tau``) with its confidence.
+
+    Parameters
+    ----------
+    brightness : ndarray (n, blocks)
+        Linear block brightness of video B per frame (:func:`block_brightness`).
+    fps : float
+        Video B's frame rate (frame ``i`` at ``i / fps``).
+    poses : Poses
+        The tracked light path.
+    max_offset : float
+        Offsets searched: ``[-max_offset, max_offset]`` seconds.
+
+    Returns
+    -------
+    dict
+        ``time_offset`` (s), ``stderr_s``, ``r2`` (variance of the total brightness that the
+        physical falloff explains at the coarse optimum), ``r2_fine`` (block brightness
+        explained by the fine model), ``contrast`` (1 - best residual / residual at the
+        runner-up: the lowest other coarse local minimum more than two frames away; the
+        confidence that the offset is not confused with another), ``runner_up_s``,
+        ``runner_up_r2`` and ``frames_used``.
+
+    Raises
+    ------
+    LtmError
+        If video B carries no usable signal (the light path explains too little of its
+        brightness at any offset, or no offset stands out).
+    """
+    cost = OffsetCost(brightness, fps, poses)
+    step = 0.5 / fps
+    taus = np.arange(-max_offset, max_offset + step / 2, step)
+    costs = np.array([cost.coarse(t) for t in taus])
+    if not np.isfinite(costs).any():
+        raise LtmError(f"video B ({len(brightness) / fps:.1f} s) and the poses "
+                       f"({poses.t[-1] - poses.t[0]:.1f} s) overlap by less than "
+                       f"{MIN_OVERLAP:.0%} at every offset within +-{max_offset:g} s; expected "
+                       "recordings of the same sweep")
+    k = int(np.nanargmin(costs))
+    reach = FINE_WINDOW * step
+    fine = np.arange(taus[k] - reach, taus[k] + reach + FINE_STEP / 2, FINE_STEP)
+    fine_costs = np.array([cost(t)[0] for t in fine])
+    j = int(np.argmin(fine_costs))
+    tau = float(fine[j])
+    if 0 < j < len(fine) - 1 and np.all(np.isfinite(fine_costs[j - 1:j + 2])):
+        c0, c1, c2 = fine_costs[j - 1:j + 2]
+        curv = (c0 - 2 * c1 + c2) / FINE_STEP**2
+        if curv > 0:
+            tau -= 0.5 * FINE_STEP * (c2 - c0) / (c0 - 2 * c1 + c2)
+    best, used = cost(tau)
+    # standard error: RSS(tau) ~ RSS_min (1 + curv/2 dtau^2); var(tau) = 2 sigma^2 / RSS''
+    wide = fine_costs[np.abs(fine - tau) <= 4 * FINE_STEP + 1e-12]
+    span = fine[np.abs(fine - tau) <= 4 * FINE_STEP + 1e-12]
+    curv = float(np.polyfit(span - tau, wide, 2)[0] * 2) if len(span) >= 3 else math.nan
+    dof = max(used - cost.n_params, 1)
+    stderr = math.sqrt(2 * best / dof / curv) if curv > 0 else math.inf
+    runner = _runner_up(taus, costs, taus[k], 2 / fps)
+    runner_cost = costs[runner] if runner is not None else float(np.nanmedian(
+        costs[np.isfinite(costs)]))
+    result = {"time_offset": float(tau), "stderr_s": stderr, "r2": float(1 - costs[k]),
+              "r2_fine": 1 - best, "contrast": float(1 - costs[k] / max(runner_cost, 1e-300)),
+              "runner_up_s": None if runner is None else float(taus[runner]),
+              "runner_up_r2": float(1 - runner_cost),
+              "frames_used": used, "search_s": [-max_offset, max_offset], "grid": GRID,
+              "method": "brightness of video B against the tracked light path"}
+    if result["r2"] < MIN_R2 or result["contrast"] < MIN_CONTRAST:
+        raise LtmError(f"no usable signal for sync: the light path explains "
+                       f"{result['r2']:.0%} of video B's brightness at best (offset "
+                       f"{tau:+.3f} s, contrast {result['contrast']:.2f}); expected at least "
+                       f"{MIN_R2:.0%} with contrast {MIN_CONTRAST} (is the LED lighting the "
+                       "painting, and do both videos record the same sweep?)")
+    return result
+
+
+def _runner_up(taus: np.ndarray, costs: np.ndarray, tau: float, away: float) -> int | None:
+    """Index of the lowest local minimum of ``costs`` further than ``away`` from ``tau``."""
+    c = np.where(np.isfinite(costs), costs, np.inf)
+    left = np.concatenate([[np.inf], c[:-1]])
+    right = np.concatenate([c[1:], [np.inf]])
+    minima = np.flatnonzero((c <= left) & (c <= right) & np.isfinite(c)
+                            & (np.abs(taus - tau) > away))
+    return int(minima[np.argmin(c[minima])]) if minima.size else None
+
+
+def sync_acquisition(acq_dir: str | os.PathLike, *, max_offset: float = DEFAULT_MAX_OFFSET,
+                     overwrite: bool = False, progress: bool = True) -> dict:
+    """Estimate the poses-to-video clock offset of an acquisition and record it.
+
+    Parameters
+    ----------
+    acq_dir : path
+        Acquisition folder whose ``poses.csv`` comes from ``ltm track``.
+    max_offset : float
+        Search range, seconds either side of zero.
+    overwrite : bool
+        Re-estimate when ``acquisition.json`` already declares a ``time_offset``.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    dict
+        The estimate (:func:`estimate_offset`) and ``acquisition`` (the file updated).
+
+    Raises
+    ------
+    LtmError
+        For a bad folder, a declared offset without ``overwrite``, recordings of different
+        lengths, or no usable signal.
+    """
+    if not (math.isfinite(max_offset) and max_offset > 0):
+        raise LtmError(f"--max-offset {max_offset!r} must be a positive number of seconds")
+    acq = load_acquisition(acq_dir)
+    meta_path = acq.folder / "acquisition.json"
+    if "time_offset" in acq.raw and not overwrite:
+        raise LtmError(f"{str(meta_path)} already declares time_offset "
+                       f"{acq.raw['time_offset']!r}; pass --overwrite to estimate it again")
+    poses = load_poses(acq.poses)
+    fps, count, _ = video_info(acq.video)
+    span_b = count / fps if fps > 0 else 0.0
+    span_p = float(poses.t[-1] - poses.t[0])
+    if span_b and (abs(span_b - span_p) > 2 * max_offset
+                   or min(span_b, span_p) < MIN_OVERLAP * max(span_b, span_p)):
+        raise LtmError(f"video B {str(acq.video)!r} lasts {span_b:.1f} s but the poses span "
+                       f"{span_p:.1f} s; expected recordings of the same sweep (lengths within "
+                       f"{2 * max_offset:g} s, see --max-offset, and within a factor "
+                       f"{1 / MIN_OVERLAP:g})")
+    brightness, fps = block_brightness(acq.video, acq.transfer, progress=progress)
+    result = estimate_offset(brightness, fps, poses, max_offset=max_offset)
+    meta = dict(acq.raw)
+    meta["time_offset"] = result["time_offset"]
+    meta["time_offset_estimate"] = {k: v for k, v in result.items() if k != "time_offset"}
+    _replace_json(meta_path, meta)
+    return {**result, "acquisition": str(meta_path)}
+
+
+def _replace_json(path: Path, meta: dict) -> None:
+    """Keep the old file as ``.bak`` and replace it atomically."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        shutil.copy2(path, path.with_name(path.name + ".bak"))
+        tmp.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise LtmError(f"cannot update {str(path)}: {exc.strerror or exc}") from None

@@ -1,0 +1,237 @@
+"""Light positions from phone A's own video: ``ltm track``.
+
+Per frame: detect the ChArUco board, estimate the camera pose (IPPE on the matched corners,
+refined by Levenberg-Marquardt), check it (enough corners, RMS reprojection error, tilt of the
+optical axis from the board normal), place the LED at its offset from the camera and express it
+in plane coordinates (:meth:`~ltmstore.board.BoardSpec.to_plane`: ``r, s`` from the board centre,
+``z`` the height above the board). Times are the frame timestamps of the video.
+
+Outputs, so that ``ltm ingest`` takes them unchanged:
+
+* ``poses.csv`` (``t,r,s,z``): one row per frame with a trustworthy pose. Frames without one are
+  left out, never interpolated here. Frames whose LED is off the plane height are kept: they are
+  measurements, and ingest rejects them with its z tolerance.
+* ``<poses>.frames.csv`` beside it: every frame with its status (``ok``, ``no_board``,
+  ``poor_pose``, ``tilted``, ``out_of_plane``), corner count, reprojection error and tilt.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm.auto import tqdm
+
+from ltmstore.board import MIN_CORNERS, BoardDetector, BoardSpec, video_frames, video_info
+from ltmstore.calibrate import Intrinsics
+from ltmstore.errors import LtmError
+
+MAX_REPROJECTION_PX = 1.5  # RMS, at 1280 px wide (scaled with the image width)
+MAX_TILT_DEG = 20.0
+Z_TOLERANCE_FRACTION = 0.05  # as ingest: of the plane height
+MIN_TRACKED_FRACTION = 0.2
+STATUSES = ("ok", "no_board", "poor_pose", "tilted", "out_of_plane")
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """Checks applied to every frame's pose.
+
+    Attributes
+    ----------
+    led_offset : (float, float, float)
+        LED position in the camera frame (x right, y down, z along the optical axis), metres.
+    max_reprojection_px : float
+        Largest RMS reprojection error of a pose, pixels at 1280 px wide.
+    max_tilt_deg : float
+        Largest angle between the optical axis and the board normal.
+    height : float, optional
+        Plane height; default the median LED height of the good frames.
+    z_tolerance : float, optional
+        Largest ``|z - height|``; default 5 % of the height (as ingest).
+    min_corners : int
+        Fewest ChArUco corners for a pose.
+    """
+
+    led_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    max_reprojection_px: float = MAX_REPROJECTION_PX
+    max_tilt_deg: float = MAX_TILT_DEG
+    height: float | None = None
+    z_tolerance: float | None = None
+    min_corners: int = MIN_CORNERS
+
+
+@dataclass(frozen=True)
+class FramePose:
+    """One frame's result: LED in plane coordinates (NaN when no pose) and diagnostics."""
+
+    t: float
+    led: np.ndarray
+    corners: int
+    reprojection_px: float
+    tilt_deg: float
+    status: str
+
+
+def estimate_pose(obj: np.ndarray, img: np.ndarray,
+                  intr: Intrinsics) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Board-to-camera rotation, translation and RMS reprojection error (pixels), or None.
+
+    IPPE (planar) gives both candidate poses; the better is refined by Levenberg-Marquardt.
+    """
+    obj = np.ascontiguousarray(obj, np.float64)
+    img = np.ascontiguousarray(img, np.float64)
+    try:
+        n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, intr.matrix, intr.distortion,
+                                                    flags=cv2.SOLVEPNP_IPPE)
+    except cv2.error:
+        return None
+    if not n:
+        return None
+    best = int(np.argmin(np.ravel(errs)))
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, intr.matrix, intr.distortion,
+                                      rvecs[best].copy(), tvecs[best].copy())
+    proj, _ = cv2.projectPoints(obj, rvec, tvec, intr.matrix, intr.distortion)
+    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img) ** 2, axis=1))))
+    return cv2.Rodrigues(rvec)[0], tvec.ravel(), rms
+
+
+def led_position(spec: BoardSpec, r_cb: np.ndarray, t: np.ndarray,
+                 led_offset) -> tuple[np.ndarray, float]:
+    """LED in plane coordinates and the tilt (degrees) of the optical axis from the normal."""
+    centre = -r_cb.T @ t
+    led_board = centre + r_cb.T @ np.asarray(led_offset, np.float64)
+    tilt = float(np.degrees(np.arccos(np.clip(r_cb[2, 2], -1.0, 1.0))))
+    return spec.to_plane(led_board), tilt
+
+
+def track_frame(detector: BoardDetector, gray: np.ndarray, t: float, intr: Intrinsics,
+                config: TrackConfig) -> FramePose:
+    """Detect, estimate and check one frame (``out_of_plane`` is decided later)."""
+    nan = np.full(3, np.nan)
+    obj, img, _ = detector.detect(gray)
+    if len(obj) < config.min_corners:
+        return FramePose(t, nan, len(obj), np.nan, np.nan, "no_board")
+    pose = estimate_pose(obj, img, intr)
+    if pose is None:
+        return FramePose(t, nan, len(obj), np.nan, np.nan, "poor_pose")
+    r_cb, tvec, rms = pose
+    led, tilt = led_position(detector.spec, r_cb, tvec, config.led_offset)
+    limit = config.max_reprojection_px * intr.image_size[0] / 1280
+    status = "poor_pose" if rms > limit else "tilted" if tilt > config.max_tilt_deg else "ok"
+    return FramePose(t, led, len(obj), rms, tilt, status)
+
+
+def track_video(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics,
+                config: TrackConfig, *, progress: bool = True) -> list[FramePose]:
+    """Track every frame of phone A's video.
+
+    Raises
+    ------
+    LtmError
+        If the video's frame size differs from the intrinsics' image size, or the board is
+        found in fewer than :data:`MIN_TRACKED_FRACTION` of the frames.
+    """
+    detector = BoardDetector(spec)
+    _, count, size = video_info(video)
+    results = []
+    for i, t, gray in tqdm(video_frames(video, what="video A"), total=count or None,
+                           disable=not progress, desc="track", unit="frame"):
+        if i == 0 and tuple(gray.shape[::-1]) != tuple(intr.image_size):
+            raise LtmError(f"video A {str(video)!r} is {gray.shape[1]}x{gray.shape[0]} but the "
+                           f"intrinsics are for {intr.image_size[0]}x{intr.image_size[1]}; "
+                           "expected intrinsics calibrated for this camera and resolution")
+        results.append(track_frame(detector, gray, t, intr, config))
+    good = sum(r.status == "ok" for r in results)
+    if good < max(2, MIN_TRACKED_FRACTION * len(results)):
+        found = sum(r.status != "no_board" for r in results)
+        raise LtmError(f"board {spec.squares[0]}x{spec.squares[1]} ({spec.dictionary}) found in "
+                       f"{found} and posed in {good} of {len(results)} frames of video A "
+                       f"{str(video)!r}; expected it in view in at least "
+                       f"{MIN_TRACKED_FRACTION:.0%} of the frames (wrong --board spec, or board "
+                       "not in view?)")
+    return _flag_out_of_plane(results, config)
+
+
+def _flag_out_of_plane(results: list[FramePose], config: TrackConfig) -> list[FramePose]:
+    z = np.array([r.led[2] for r in results if r.status == "ok"])
+    height = float(np.median(z)) if config.height is None else float(config.height)
+    tol = Z_TOLERANCE_FRACTION * abs(height) if config.z_tolerance is None else config.z_tolerance
+    out = []
+    for r in results:
+        if r.status == "ok" and abs(r.led[2] - height) > tol:
+            r = FramePose(r.t, r.led, r.corners, r.reprojection_px, r.tilt_deg, "out_of_plane")
+        out.append(r)
+    return out
+
+
+def write_tracks(out: str | os.PathLike, results: list[FramePose]) -> dict:
+    """Write ``poses.csv`` (good and out-of-plane frames) and ``<stem>.frames.csv`` (all).
+
+    Both are written beside and moved into place, so a failure leaves no half-written file.
+    """
+    out = Path(out)
+    frames_csv = out.with_name(out.stem + ".frames.csv")
+    keep = [r for r in results if r.status in ("ok", "out_of_plane")]
+    rows = "".join(f"{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f}\n" for r in keep)
+    detail = "".join(f"{i},{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f},{r.corners},"
+                     f"{r.reprojection_px:.4f},{r.tilt_deg:.3f},{r.status}\n"
+                     for i, r in enumerate(results))
+    try:
+        for path, text in ((out, "t,r,s,z\n" + rows),
+                           (frames_csv, "frame,t,r,s,z,corners,reprojection_px,tilt_deg,status\n"
+                            + detail)):
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text(text)
+            os.replace(tmp, path)
+    except OSError as exc:
+        raise LtmError(f"cannot write poses {str(out)!r}: {exc.strerror or exc}") from None
+    return {"poses": str(out), "frames_csv": str(frames_csv)}
+
+
+def track(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics, out: str | os.PathLike,
+          *, config: TrackConfig, overwrite: bool = False, progress: bool = True) -> dict:
+    """Track phone A's video and write the poses (see the module docstring).
+
+    Parameters
+    ----------
+    video : path
+        Phone A's video.
+    spec : BoardSpec
+        The board in the object plane.
+    intr : Intrinsics
+        Phone A's camera calibration (for the video's resolution).
+    out : path
+        ``poses.csv`` to write.
+    config : TrackConfig
+        LED offset and the pose checks.
+    overwrite : bool
+        Replace an existing ``out``.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    dict
+        ``frames``, ``rows`` (written to ``out``), ``status`` counts, ``height`` (median LED
+        height), ``reprojection_px`` (median and 95th percentile), ``corners`` (median),
+        ``longest_gap_s`` between written rows, and the paths.
+    """
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    results = track_video(video, spec, intr, config, progress=progress)
+    paths = write_tracks(out, results)
+    ok = [r for r in results if r.status in ("ok", "out_of_plane")]
+    t = np.array([r.t for r in ok])
+    rms = np.array([r.reprojection_px for r in ok])
+    return {"frames": len(results), "rows": len(ok),
+            "status": {s: sum(r.status == s for r in results) for s in STATUSES},
+            "height": float(np.median([r.led[2] for r in ok])),
+            "reprojection_px": {"median": float(np.median(rms)),
+                                "p95": float(np.percentile(rms, 95))},
+            "corners": float(np.median([r.corners for r in ok])),
+            "longest_gap_s": float(np.diff(t).max()) if len(t) > 1 else 0.0, **paths}

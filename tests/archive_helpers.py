@@ -1,0 +1,157 @@
+"""Shared pieces of the archive, resume and fault tests (imported as a plain module)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import signal
+import subprocess
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import zarr
+from pipeline_helpers import BIN, free_port
+
+from ltmstore.archive import ArchiveParams
+from ltmstore.reconstruct import reconstruct, tiles_name
+
+# A slow solver on a small lattice: 16 tiles of ~0.2-0.5 s each, so a kill lands mid-run.
+SLOW = {"lattice": (8, 8), "tile": 8, "method": "lars"}
+SLOW_ARGS = ["--lattice", "8x8", "--tile", "8", "--method", "lars"]
+N_TILES = 16
+
+
+def tree_digest(path: Path) -> dict[str, str]:
+    """sha256 of every file under ``path`` (or of ``path`` itself), by relative name."""
+    path = Path(path)
+    if path.is_file():
+        return {"": hashlib.sha256(path.read_bytes()).hexdigest()}
+    return {str(f.relative_to(path)): hashlib.sha256(f.read_bytes()).hexdigest()
+            for f in sorted(path.rglob("*")) if f.is_file() and not f.is_symlink()}
+
+
+def tiles_done(store: Path, variable: str = "ltm") -> int:
+    """How many tiles an (interrupted) reconstruct marked done; 0 while none can be read."""
+    try:
+        marks = zarr.open_group(str(store), mode="r")[tiles_name(variable)][...]
+    except Exception:  # noqa: BLE001 - not created yet, or being written
+        return 0
+    return int((np.asarray(marks, dtype=object) != "").sum())
+
+
+def start_reconstruct(store: Path, *args: str, env: dict | None = None) -> subprocess.Popen:
+    """`ltm reconstruct STORE ARGS` in its own process group."""
+    return subprocess.Popen([BIN / "ltm", "reconstruct", store, *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True, env=env)
+
+
+def wait_for_tiles(proc: subprocess.Popen, store: Path, n: int = 1, timeout: float = 120) -> None:
+    """Poll until ``n`` tiles are marked done (the process must still run)."""
+    deadline = time.monotonic() + timeout
+    while tiles_done(store) < n:
+        assert proc.poll() is None, "the run ended before the kill"
+        assert time.monotonic() < deadline, "no tile finished in time"
+        time.sleep(0.02)
+
+
+def kill_group(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait(timeout=30)
+
+
+@contextmanager
+def dask_cluster_processes(n_workers: int = 2):
+    """`dask scheduler` + ``n_workers`` `dask worker` processes, each in its own process group.
+
+    Yields ``(address, workers)``; every group is killed on exit.
+    """
+    from distributed import Client
+
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env,
+             "start_new_session": True}
+    procs = [subprocess.Popen([BIN / "dask", "scheduler", "--host", "127.0.0.1", "--port",
+                               str(port), "--no-dashboard"], **quiet)]
+    try:
+        workers = [subprocess.Popen([BIN / "dask", "worker", address, "--nthreads", "1",
+                                     "--no-dashboard", "--host", "127.0.0.1"], **quiet)
+                   for _ in range(n_workers)]
+        procs += workers
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(n_workers, timeout=60)
+        yield address, workers
+    finally:
+        for proc in procs[::-1]:
+            kill_group(proc)
+
+
+_REFERENCE: dict[str, Path] = {}
+
+
+def slow_reference(small_store: Path, dask_cluster) -> Path:
+    """The uninterrupted :data:`SLOW` reconstruction of ``small_store`` (made once a session)."""
+    import tempfile
+
+    from distributed import Client
+
+    if str(small_store) not in _REFERENCE:
+        store = copy_store(small_store, Path(tempfile.mkdtemp(prefix="ltm-ref-")) / "ref.zarr")
+        with Client(dask_cluster) as client:
+            info = reconstruct(store, client=client, overwrite=True, progress=False, **SLOW)
+        assert info["tiles_solved"] == N_TILES and info["tiles_resumed"] == 0
+        _REFERENCE[str(small_store)] = store
+    return _REFERENCE[str(small_store)]
+
+
+def copy_store(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+PARAMS = ArchiveParams(lattice=(12, 12), tile=16)
+ARGS = ["--lattice", "12x12", "--tile", "16"]
+
+
+def make_stale(store) -> None:
+    """Pretend an older ltmstore made the store (what an upgrade leaves behind)."""
+    group = zarr.open_group(str(store), mode="r+")
+    stages = group.attrs["stages"]
+    stages["reconstruct"]["software"] = "ltmstore 0.0.1"
+    stages["reconstruct"]["run"]["software"] = "0.0.1"
+    group.attrs["stages"] = stages
+
+
+def build_archive(root, acquisition, good_store) -> None:
+    """a: up to date, b: stale, c: new, d: broken acquisition.json, e: symlink out of the root."""
+    root.mkdir()
+    for name in "abcd":
+        shutil.copytree(acquisition, root / name, ignore=shutil.ignore_patterns("truth.zarr"))
+    shutil.copytree(good_store, root / "a.zarr")
+    shutil.copytree(good_store, root / "b.zarr")
+    make_stale(root / "b.zarr")
+    (root / "d" / "acquisition.json").write_text('{"format": "ltm-acquisition/1", "video": ')
+    (root / "e").symlink_to(acquisition)
+
+
+def make_good_store(small_store, tmp_path_factory, dask_cluster) -> Path:
+    """The small acquisition reconstructed with the archive's parameters (once a session)."""
+    from distributed import Client
+
+    key = f"good:{small_store}"
+    if key not in _REFERENCE:
+        store = tmp_path_factory.mktemp("good") / "store.zarr"
+        shutil.copytree(small_store, store)
+        with Client(dask_cluster) as client:
+            reconstruct(store, client=client, overwrite=True, progress=False,
+                        **PARAMS.options())
+        _REFERENCE[key] = store
+    return _REFERENCE[key]
