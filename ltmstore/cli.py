@@ -14,12 +14,19 @@ from ltmstore.errors import LtmError
 EPILOG = "Docs: README.md. Stores open with xarray.open_zarr(STORE, consolidated=False)."
 
 
-def _light(text: str) -> tuple[float, float]:
-    try:
-        r, s = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} must look like R,S (plane units)") from None
-    return r, s
+def _pair(names: str):
+    """An argparse type for two comma-separated numbers, e.g. ``R,S`` or ``P,Q``."""
+    def parse(text: str) -> tuple[float, float]:
+        try:
+            a, b = (float(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} must look like {names} (plane units)") from None
+        return a, b
+    return parse
+
+
+_light = _pair("R,S")
 
 
 def _number(text: str) -> float:
@@ -334,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("store")
     p.add_argument("--light", type=_light, action="append", required=True,
                    help="R,S light position on the plane; repeat to add lights")
-    p.add_argument("--view", type=_light, default=None, metavar="P,Q",
+    p.add_argument("--view", type=_pair("P,Q"), default=None, metavar="P,Q",
                    help="6D stores: camera position on the view plane (default: its centre)")
     p.add_argument("-o", "--output", default="relit.png", help="image file (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true")

@@ -12,10 +12,11 @@ Layout written (ARCHITECTURE.md section 3.2), for ``n`` frames of ``H x W`` pixe
 * group attribute ``acquisition`` (provenance, input hashes) and stage ``ingest``.
 
 A frame is rejected (``pose_valid`` False) for the first of these reasons that applies:
-``beyond_poses`` (its time lies outside the pose record), ``out_of_plane`` (the light is further
-than the z tolerance from the plane height; default :data:`Z_TOLERANCE_FRACTION` of the height,
-about a 10 % change of irradiance by the inverse-square law) and ``outside_bounds`` (the light is
-outside the plane rectangle, or the camera outside the view plane).
+``beyond_poses`` (its time lies outside the pose record or in a gap of it longer than
+:data:`MAX_POSE_GAP_S`), ``out_of_plane`` (the light is further than the z tolerance from the
+plane height; default :data:`Z_TOLERANCE_FRACTION` of the height, about a 10 % change of
+irradiance by the inverse-square law) and ``outside_bounds`` (the light is outside the plane
+rectangle, or the camera outside the view plane).
 
 6D acquisitions (``view_plane`` in ``acquisition.json``, ``p, q`` columns in ``poses.csv``)
 whose ``view_plane`` declares camera B (``distance``, ``intrinsics``, ``grid``): every frame is
@@ -69,6 +70,9 @@ SPATIAL_CHUNK = 256
 REGISTERED_SPATIAL_CHUNK = 16
 MIN_VALID_FRAMES = 8
 Z_TOLERANCE_FRACTION = 0.05
+# Longest pose interval interpolated across: a tracker's dropouts (60 Hz, up to 10 reports)
+# are bridged, a light lost for longer (no board in phone A's view) is not guessed.
+MAX_POSE_GAP_S = 0.25
 # Measured over seeds 0-2: relief 0.035-0.038, icon 0.019-0.023, canvas 0.070-0.081.
 CHROMA_TOLERANCE = 0.05  # RMS colour error of a luminance-only LTM, relative to the signal
 # A video whose decoded frame count falls short of its header's by more than this is truncated.
@@ -145,11 +149,15 @@ def lights_at(t: np.ndarray, poses: Poses, *, plane: Plane, z_tolerance: float,
     """Interpolate the poses (linearly) at frame times ``t`` and classify the frames.
 
     Pose times are shifted by ``time_offset`` onto the video's clock; frames outside the shifted
-    pose record are ``beyond_poses``.
+    pose record, or inside a gap of it longer than :data:`MAX_POSE_GAP_S` (a tracker that lost
+    the light), are ``beyond_poses``: their position would be guessed, not measured.
     """
     t = np.asarray(t, dtype=np.float64)
     tp = poses.t + time_offset
-    known = (t >= tp[0]) & (t <= tp[-1])
+    after = np.clip(np.searchsorted(tp, t), 1, len(tp) - 1)
+    bridged = tp[after] - tp[after - 1]  # the pose interval interpolated across
+    measured = (t == tp[after]) | (t == tp[after - 1])
+    known = (t >= tp[0]) & (t <= tp[-1]) & ((bridged <= MAX_POSE_GAP_S) | measured)
     at = partial(np.interp, t, tp)
     view = {k: at(getattr(poses, k)) for k in VIEW_DIMS if getattr(poses, k) is not None}
     return Lights.classify(at(poses.r), at(poses.s), at(poses.z), plane=plane, known=known,

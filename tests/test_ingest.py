@@ -26,12 +26,15 @@ from ingest_helpers import (
     tree_hashes,
 )
 
+from ltmstore.acquisition import Poses
 from ltmstore.errors import LtmError
 from ltmstore.ingest import (
+    MAX_POSE_GAP_S,
     Z_TOLERANCE_FRACTION,
     FrameSink,
     chroma_decision,
     ingest,
+    lights_at,
     transfer_lut,
 )
 from ltmstore.store import open_group, open_store, stages
@@ -224,6 +227,20 @@ def test_time_offset(tmp_path):
     known = (t >= 0.69) & (t <= 1.71)
     np.testing.assert_allclose(ds.pose_r.values[known], r_of(t[known] - 0.2), atol=1e-7)
     assert report["rejected"]["beyond_poses"] == N - known.sum()
+
+
+def test_a_long_gap_in_the_poses_is_not_bridged():
+    """Frames inside a pose gap longer than MAX_POSE_GAP_S get no guessed light; short gaps
+    (tracker dropouts) are interpolated."""
+    tp = np.concatenate([np.arange(0, 1, 0.02), [1.1], np.arange(2, 3, 0.02)])  # 0.9 s lost
+    poses = Poses(t=tp, r=tp * 0.01, s=np.zeros_like(tp), z=np.full_like(tp, PLANE.height))
+    t = np.arange(0, 2.9, 1 / 30)
+    lights = lights_at(t, poses, plane=PLANE, z_tolerance=0.01)
+    lost = (t > 1.1) & (t < 2.0)
+    assert 1.1 - 0.98 < MAX_POSE_GAP_S < 2.0 - 1.1
+    np.testing.assert_array_equal(lights.beyond_poses, lost)
+    np.testing.assert_allclose(lights.r[~lost], t[~lost] * 0.01, atol=1e-12)
+    assert np.isnan(lights.r[lost]).all()
 
 
 def test_view_poses(tmp_path):

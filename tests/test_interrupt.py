@@ -26,8 +26,19 @@ def ingested(small_store, tmp_path):
 
 
 def fresh_shards(array, since: float) -> bool:
-    """Whether any shard of ``array`` was written after ``since`` (seconds since the epoch)."""
-    return any(f.stat().st_mtime >= since for f in (array / "c").rglob("*") if f.is_file())
+    """Whether any shard of ``array`` was written after ``since`` (seconds since the epoch).
+
+    The rerun deletes the old ``ltm`` while this polls: a file gone mid-scan is not fresh.
+    """
+    def mtime(f) -> float:
+        try:
+            return f.stat().st_mtime
+        except FileNotFoundError:
+            return 0.0
+    try:
+        return any(mtime(f) >= since for f in (array / "c").rglob("*") if f.is_file())
+    except FileNotFoundError:  # a directory removed during the scan
+        return False
 
 
 def assert_not_complete(store) -> None:
