@@ -168,7 +168,13 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
                 color: bool | None = None, tile: int = 32, overwrite: bool = False,
                 resume: bool = True, progress: bool = True) -> dict:
-    """Resample and reconstruct the LTM of an ingested store, in place.
+    """Resample and reconstruct the LTM of an ingested store.
+
+    A store without a complete ``ltm`` is written in place (an interrupted run of the same
+    parameters is resumed). Recomputing a complete one (``overwrite``) builds the new ``ltm`` on
+    a linked copy beside the store (:func:`ltmstore.store.revised_store`) and swaps it in only
+    when complete: a failure leaves the previous ``ltm`` untouched, and a killed run is resumed
+    by the next ``overwrite`` run of the same parameters.
 
     Parameters
     ----------
@@ -194,7 +200,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     tile : int
         Pixel tile side: the unit of work and the ``ltm`` shard.
     overwrite : bool
-        Recompute an existing ``ltm``.
+        Recompute an existing complete ``ltm``.
     resume : bool
         When an earlier run of the same parameters and software was interrupted (stage
         ``reconstruct`` incomplete, its samples complete), solve only the tiles it did not
@@ -210,10 +216,11 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     if int(tile) != tile or tile < 1:
         raise LtmError(f"--tile {tile!r} must be a positive whole number of pixels")
     get_method(method)
-    group = st.open_group(path, mode="r+")
+    group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
     st.check_writable(path)
-    if st.stages(group).get("reconstruct", {}).get("complete") and not overwrite:
+    revise = bool(st.stages(group).get("reconstruct", {}).get("complete"))
+    if revise and not overwrite:
         raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute it")
     if color is None:
         color = not st.stages(group)["ingest"].get("chroma", {}).get("invariant", True)
@@ -223,13 +230,23 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
                auto=auto, color=color, tile=tile, progress=progress, resume=resume)
     try:
-        if client is not None:
-            return _reconstruct(group, client, **run)
-        with dask_client(scheduler) as own:
-            return _reconstruct(group, own, **run)
+        if not revise:
+            return _on_cluster(path, client, scheduler, run)
+        # a good ltm exists: build the new one on a linked copy, swapped in only when complete
+        with st.revised_store(path) as side:
+            return _on_cluster(side, client, scheduler, run)
     except OSError as exc:  # a full disk, a store made read-only during the run
-        raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}; its "
-                       "reconstruct stage stays incomplete") from exc
+        kept = ("the previous ltm is untouched" if revise
+                else "its reconstruct stage stays incomplete")
+        raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}; {kept}") from exc
+
+
+def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -> dict:
+    group = st.open_group(path, mode="r+")
+    if client is not None:
+        return _reconstruct(group, client, **run)
+    with dask_client(scheduler) as own:
+        return _reconstruct(group, own, **run)
 
 
 def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: bool,

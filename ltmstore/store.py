@@ -74,6 +74,60 @@ def new_store(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[z
         raise
 
 
+def revision_path(path: str | os.PathLike) -> Path:
+    """Where :func:`revised_store` builds the next version of the store at ``path``."""
+    path = Path(path)
+    return path.parent / f".{path.name}.revising"
+
+
+@contextmanager
+def revised_store(path: str | os.PathLike) -> Iterator[Path]:
+    """Revise an existing store on a linked copy beside it; swap the copy in only on success.
+
+    The copy (:func:`revision_path`) hard-links the store's files (no data is copied; Zarr
+    replaces a file it rewrites rather than writing into it) and copies its metadata. The body
+    gets the copy's path. If the body raises, the copy is removed and the store at ``path`` is
+    untouched; if the process is killed, the copy stays for a later revision to resume. A copy
+    left by an earlier run is reused when it holds the same ingest.
+    """
+    path = Path(path)
+    side = revision_path(path)
+    if not os.access(path.parent, os.W_OK):
+        raise LtmError(f"cannot revise store {str(path)!r}: folder {str(path.parent)!r} is "
+                       "not writable")
+    if side.exists() and not _same_ingest(path, side):
+        shutil.rmtree(side)
+    try:
+        if not side.exists():
+            shutil.copytree(path, side, copy_function=_link_or_copy)
+        yield side
+        old = path.parent / f".{path.name}.old-{os.getpid()}"
+        path.rename(old)
+        side.rename(path)
+        shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(side, ignore_errors=True)
+        raise
+
+
+def _same_ingest(a: Path, b: Path) -> bool:
+    try:
+        return stages(open_group(b, mode="r")).get("ingest") == stages(
+            open_group(a, mode="r")).get("ingest")
+    except (LtmError, OSError, ValueError):
+        return False
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    if Path(src).name != "zarr.json":
+        try:
+            os.link(src, dst)
+            return
+        except OSError:
+            pass
+    shutil.copy2(src, dst)
+
+
 class CountingStore(WrapperStore):
     """Wraps a Zarr store and counts the reads and bytes it serves (to measure queries)."""
 

@@ -17,6 +17,7 @@ from pipeline_helpers import BIN, free_port
 
 from ltmstore.archive import ArchiveParams
 from ltmstore.reconstruct import reconstruct, tiles_name
+from ltmstore.store import STAGE_VARIABLES, STAGES_ATTR
 
 # A slow solver on a small lattice: 16 tiles of ~0.2-0.5 s each, so a kill lands mid-run.
 SLOW = {"lattice": (8, 8), "tile": 8, "method": "lars"}
@@ -114,6 +115,18 @@ def slow_reference(small_store: Path, dask_cluster) -> Path:
 
 def copy_store(src: Path, dst: Path) -> Path:
     shutil.copytree(src, dst)
+    return dst
+
+
+def ingest_only(src: Path, dst: Path) -> Path:
+    """A copy of ``src`` as ingest left it (no resample or reconstruct): reconstruct writes it in
+    place, where an ``--overwrite`` of a complete store works on a revision beside it."""
+    shutil.copytree(src, dst)
+    group = zarr.open_group(str(dst), mode="r+")
+    for name in (*STAGE_VARIABLES["resample"], *STAGE_VARIABLES["reconstruct"]):
+        if name in group:
+            del group[name]
+    group.attrs[STAGES_ATTR] = {"ingest": group.attrs[STAGES_ATTR]["ingest"]}
     return dst
 
 

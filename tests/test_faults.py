@@ -16,6 +16,7 @@ from archive_helpers import (
     SLOW_ARGS,
     copy_store,
     dask_cluster_processes,
+    ingest_only,
     kill_group,
     slow_reference,
     start_reconstruct,
@@ -30,9 +31,9 @@ from ltmstore.store import open_group, open_store, stages
 def test_a_worker_killed_mid_run_the_run_completes_with_the_same_values(small_store, tmp_path,
                                                                           dask_cluster):
     reference = slow_reference(small_store, dask_cluster)
-    store = copy_store(small_store, tmp_path / "store.zarr")
+    store = ingest_only(small_store, tmp_path / "store.zarr")
     with dask_cluster_processes(2) as (address, workers):
-        proc = start_reconstruct(store, *SLOW_ARGS, "--overwrite", "--scheduler", address)
+        proc = start_reconstruct(store, *SLOW_ARGS, "--scheduler", address)
         try:
             wait_for_tiles(proc, store, 1)
             kill_group(workers[0])  # the nanny and its worker, SIGKILL: tasks on it are lost
@@ -81,14 +82,29 @@ def test_full_disk_during_ingest_is_a_clear_error_and_the_good_store_is_untouche
 
 def test_full_disk_during_reconstruct_is_a_clear_error_and_never_complete(small_store,
                                                                         tmp_path):
-    store = copy_store(small_store, tmp_path / "store.zarr")
-    proc = subprocess.run([BIN / "ltm", "reconstruct", store, "--lattice", "16x16",
-                           "--overwrite"], capture_output=True, text=True, timeout=120,
+    """A first reconstruct (in place) on a full disk: its stage stays incomplete."""
+    store = ingest_only(small_store, tmp_path / "store.zarr")
+    proc = subprocess.run([BIN / "ltm", "reconstruct", store, "--lattice", "16x16"],
+                          capture_output=True, text=True, timeout=120,
                           preexec_fn=_file_size_limit(8 * 1024))
     assert proc.returncode == 2, proc.stderr
     assert one_error_line(proc.stderr).startswith("ltm: error: cannot write store")
     assert stages(open_group(store))["reconstruct"]["complete"] is False
     assert "ltm" not in open_store(store)
+
+
+@pytest.mark.parametrize("limit", [8 * 1024, 256 * 1024])  # fails copying / writing the ltm
+def test_full_disk_during_overwrite_leaves_the_good_ltm_untouched(small_store, tmp_path, limit):
+    store = copy_store(small_store, tmp_path / "store.zarr")
+    before = tree_digest(store)
+    proc = subprocess.run([BIN / "ltm", "reconstruct", store, "--lattice", "16x16",
+                           "--overwrite"], capture_output=True, text=True, timeout=120,
+                          preexec_fn=_file_size_limit(limit))
+    assert proc.returncode == 2, proc.stderr
+    line = one_error_line(proc.stderr)
+    assert line.startswith("ltm: error: cannot write store") and "untouched" in line
+    assert tree_digest(store) == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no revision left
 
 
 def _without_root_override():

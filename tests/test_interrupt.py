@@ -9,17 +9,24 @@ import subprocess
 import time
 
 import pytest
+from archive_helpers import ingest_only, tree_digest
 from pipeline_helpers import BIN, run_ltm
 
 from ltmstore import relight
 from ltmstore.errors import LtmError
 from ltmstore.reconstruct import reconstruct
-from ltmstore.store import open_group, open_store, stages
+from ltmstore.store import open_group, open_store, revision_path, stages
 
 
 @pytest.fixture
 def ingested(small_store, tmp_path):
-    """A copy of the session store with its reconstruct stage about to be redone."""
+    """A copy of the session store as ingest left it: reconstruct writes it in place."""
+    return ingest_only(small_store, tmp_path / "store.zarr")
+
+
+@pytest.fixture
+def reconstructed(small_store, tmp_path):
+    """A copy of the session store with a complete ltm."""
     store = tmp_path / "store.zarr"
     shutil.copytree(small_store, store)
     return store
@@ -77,13 +84,16 @@ def test_sigkill_mid_solve_leaves_the_stage_incomplete(ingested):
         relight(ingested, [(0.0, 0.0)])
 
 
-def test_a_failed_rerun_on_another_lattice_leaves_a_consistent_store(ingested, client):
-    """The old ltm (16 x 16) must not survive beside the new lattice's coordinates."""
+def test_a_failed_rerun_on_another_lattice_leaves_the_good_ltm_untouched(reconstructed, client):
+    """--overwrite of a complete ltm works on a revision beside it: a failure changes nothing."""
+    before = tree_digest(reconstructed)
     with pytest.raises(ValueError, match="many"):
-        reconstruct(ingested, client=client, lattice=(12, 12), overwrite=True,
+        reconstruct(reconstructed, client=client, lattice=(12, 12), overwrite=True,
                     params={"n_iter": "many"}, progress=False)
-    ds = open_store(ingested)
-    assert "ltm" not in ds and ds.sizes["r"] == 12
+    assert tree_digest(reconstructed) == before
+    assert not revision_path(reconstructed).exists()
+    ds = open_store(reconstructed)
+    assert "ltm" in ds and ds.sizes["r"] == 16
 
 
 def test_bad_tile_is_a_clear_error_before_any_write(ingested):

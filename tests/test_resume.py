@@ -9,16 +9,18 @@ from archive_helpers import (
     N_TILES,
     SLOW_ARGS,
     copy_store,
+    ingest_only,
     kill_group,
     slow_reference,
     start_reconstruct,
     tiles_done,
+    tree_digest,
     wait_for_tiles,
 )
 from pipeline_helpers import run_ltm
 
 from ltmstore.reconstruct import reconstruct, tiles_name
-from ltmstore.store import open_group, open_store, stages
+from ltmstore.store import open_group, open_store, revision_path, stages
 
 OUTPUTS = ("ltm", "expected_error", "unsupported")
 
@@ -32,8 +34,8 @@ def reference(small_store, dask_cluster):
 @pytest.fixture(scope="module")
 def killed_template(small_store, tmp_path_factory):
     """A store whose `ltm reconstruct` was SIGKILLed after some tiles were written."""
-    store = copy_store(small_store, tmp_path_factory.mktemp("killed") / "store.zarr")
-    proc = start_reconstruct(store, *SLOW_ARGS, "--overwrite")
+    store = ingest_only(small_store, tmp_path_factory.mktemp("killed") / "store.zarr")
+    proc = start_reconstruct(store, *SLOW_ARGS)
     try:
         wait_for_tiles(proc, store, 1)
     finally:
@@ -72,3 +74,27 @@ def test_other_parameters_start_over(killed, client):
                        progress=False)
     assert info["tiles_solved"] == N_TILES and info["tiles_resumed"] == 0 and not info["resumed"]
     assert open_store(store)["ltm"].shape[2:] == (12, 12)
+
+
+def test_a_killed_overwrite_keeps_the_good_ltm_and_the_next_one_resumes(small_store, reference,
+                                                                       dask_cluster, tmp_path):
+    """--overwrite of a complete ltm builds a revision beside it: SIGKILL leaves the store
+    byte-identical, and the next --overwrite run of the same parameters resumes the revision."""
+    store = copy_store(small_store, tmp_path / "store.zarr")
+    before = tree_digest(store)
+    proc = start_reconstruct(store, *SLOW_ARGS, "--overwrite")
+    try:
+        wait_for_tiles(proc, revision_path(store), 1)
+    finally:
+        kill_group(proc)
+    done = tiles_done(revision_path(store))
+    assert tree_digest(store) == before and 0 < done < N_TILES
+    proc = run_ltm("reconstruct", store, *SLOW_ARGS, "--overwrite", "--scheduler",
+                   dask_cluster.scheduler_address)
+    assert proc.returncode == 0, proc.stderr
+    rec = stages(open_group(store))["reconstruct"]
+    assert rec["complete"] and rec["resumed"] and rec["tiles_solved"] == N_TILES - done
+    for name in OUTPUTS:
+        np.testing.assert_array_equal(open_store(store)[name].values, reference[name].values,
+                                      err_msg=name)
+    assert not revision_path(store).exists()
