@@ -21,19 +21,15 @@ from pathlib import Path
 
 from prefect import flow, task
 from prefect.artifacts import create_table_artifact
+from prefect.task_runners import ThreadPoolTaskRunner
 
+from flows.process import transient_io
 from ltmstore.archive import ArchiveParams, archive_status, record_runs, reprocess, summary_row
 from ltmstore.cluster import dask_client
 from ltmstore.errors import LtmError
 
 ARTIFACT_KEY = "archive-summary"
 FLOW_NAME = "reprocess-archive"
-
-
-def transient_io(task, task_run, state) -> bool:
-    """Retry only on operating-system I/O errors (a flaky share, a busy file), never on a user
-    mistake or a full disk (reported as :class:`~ltmstore.errors.LtmError`)."""
-    return isinstance(state.result(raise_on_failure=False), OSError)
 
 
 @task(retries=2, retry_delay_seconds=1, retry_condition_fn=transient_io,
@@ -93,32 +89,24 @@ def reprocess_archive(root: str, lattice: list[int] | None = None, delta_rs: flo
 
 
 def _run_all(entries, params: ArchiveParams, address: str, limit: int) -> list[dict]:
-    """Submit one task per entry, at most ``limit`` in flight; collect a row per entry."""
-    options = {"lattice": params.lattice, "delta_rs": params.delta_rs, "method": params.method,
-               "auto": params.auto, "tile": params.tile}
-    pending, running, rows = list(entries), [], []
-    while pending or running:
-        while pending and len(running) < limit:
-            e = pending.pop(0)
-            running.append((e, reprocess_task.submit(e.name, str(e.folder), str(e.store),
-                                                     options, address)))
-        finished = [(e, f) for e, f in running if f.state.is_final()]
-        if not finished:
-            time.sleep(0.2)
-            continue
-        for e, fut in finished:
-            running.remove((e, fut))
-            result = fut.result(raise_on_failure=False)
-            if isinstance(result, BaseException):
-                reason = " ".join(str(result).split()) or type(result).__name__
-                if not isinstance(result, LtmError):
-                    reason = f"{type(result).__name__}: {reason}"
-                rows.append(summary_row(e.name, "failed", reason=reason))
-            else:
-                rows.append(summary_row(e.name, "reprocessed", seconds=result["seconds"],
-                                        sampling_ratio=result["sampling_ratio"],
-                                        heldout_error=result["heldout_error"]))
-    return rows
+    """Run one task per entry, at most ``limit`` at a time; collect a row per entry."""
+    with ThreadPoolTaskRunner(max_workers=limit) as runner:
+        futures = [(e, runner.submit(reprocess_task, {
+            "name": e.name, "folder": str(e.folder), "store": str(e.store),
+            "params": params.options(), "scheduler": address})) for e in entries]
+        return [_row(e.name, fut.result(raise_on_failure=False)) for e, fut in futures]
+
+
+def _row(name: str, result) -> dict:
+    """The summary row of one task's result (an exception when it failed)."""
+    if not isinstance(result, BaseException):
+        return summary_row(name, "reprocessed", seconds=result["seconds"],
+                           sampling_ratio=result["sampling_ratio"],
+                           heldout_error=result["heldout_error"])
+    reason = " ".join(str(result).split()) or type(result).__name__
+    if not isinstance(result, LtmError):
+        reason = f"{type(result).__name__}: {reason}"
+    return summary_row(name, "failed", reason=reason)
 
 
 def serve_archive(root: str, *, cron: str, name: str = "archive", parameters: dict) -> None:

@@ -10,7 +10,8 @@ from ltmstore.reconstruct import reconstruct
 
 
 def transient_io(task, task_run, state) -> bool:
-    """Retry only on operating-system I/O errors, never on a user mistake."""
+    """Retry only on operating-system I/O errors (a flaky share, a busy file), never on a user
+    mistake or a full disk (reported as :class:`~ltmstore.errors.LtmError`)."""
     return isinstance(state.result(raise_on_failure=False), OSError)
 
 

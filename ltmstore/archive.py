@@ -21,7 +21,6 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
-import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -318,17 +317,13 @@ def _ingest_reusable(work: Path, hashes: dict) -> bool:
 
 def _swap(work: Path, store: Path) -> None:
     """Move the complete side store into place; the old store is removed only afterwards."""
-    old = store.with_name(f".{store.name}.old-{os.getpid()}")
+    from ltmstore.store import swap_in
+
     try:
-        if store.exists():
-            store.rename(old)
-        work.rename(store)
+        swap_in(work, store)
     except OSError as exc:
-        if old.exists() and not store.exists():
-            old.rename(store)
         raise LtmError(f"cannot move the new store into {str(store)!r}: "
                        f"{exc.strerror or exc}") from exc
-    shutil.rmtree(old, ignore_errors=True)
 
 
 def summary_row(name: str, status: str, *, seconds: float | None = None,

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm.auto import tqdm
 
 from ltmstore.errors import LtmError
 
@@ -69,7 +70,7 @@ class BoardSpec:
         if self.dictionary not in DICTIONARIES:
             raise LtmError(f"board dictionary {self.dictionary!r} is not supported; expected "
                            f"one of {list(DICTIONARIES)}")
-        capacity = int(self.dictionary.rsplit("_", 1)[1])
+        capacity = _capacity(self.dictionary)
         if nx * ny // 2 > capacity:
             raise LtmError(f"board of {nx}x{ny} squares needs {nx * ny // 2} markers; "
                            f"{self.dictionary} has {capacity}")
@@ -124,16 +125,35 @@ class BoardSpec:
         return spec
 
 
+def _capacity(dictionary: str) -> int:
+    """Markers in a predefined dictionary: ``"DICT_5X5_250"`` -> 250."""
+    return int(dictionary.rsplit("_", 1)[1])
+
+
+def read_spec_json(path: str | os.PathLike, *, what: str, written_by: str) -> object:
+    """Parse a JSON file written by an ``ltm`` command (a board spec, intrinsics).
+
+    Raises
+    ------
+    LtmError
+        If the file is missing or not valid JSON, naming ``what`` and the command
+        ``written_by`` that writes it.
+    """
+    path = Path(path)
+    expected = f"expected the JSON written by `{written_by}`"
+    if not path.is_file():
+        raise LtmError(f"{what} {str(path)!r} does not exist; {expected}")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, RecursionError) as exc:  # not JSON, not UTF-8, absurd numbers or nesting
+        raise LtmError(f"{what} {str(path)!r} is malformed (it is not valid JSON: "
+                       f"{' '.join(str(exc).split())}); {expected}") from None
+
+
 def load_board(path: str | os.PathLike) -> BoardSpec:
     """Read a board spec JSON written by :func:`write_board`."""
     path = Path(path)
-    if not path.is_file():
-        raise LtmError(f"board spec {str(path)!r} does not exist; expected the JSON written by "
-                       "`ltm board`")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise LtmError(f"board spec {str(path)!r} is not valid JSON: {exc}") from None
+    data = read_spec_json(path, what="board spec", written_by="ltm board")
     return BoardSpec.from_json(data, str(path))
 
 
@@ -197,7 +217,7 @@ def board_spec(size: str = "A4", squares: tuple[int, int] | None = None,
                            f"a {size} page ({aw * 1000:.0f}x{ah * 1000:.0f} mm inside margins)")
     sq = math.floor(sq * 1e4) / 1e4  # a tenth of a millimetre
     markers = squares[0] * squares[1] // 2
-    dictionary = next((d for d in DICTIONARIES if int(d.rsplit("_", 1)[1]) >= markers), None)
+    dictionary = next((d for d in DICTIONARIES if _capacity(d) >= markers), None)
     if dictionary is None:
         raise LtmError(f"{squares[0]}x{squares[1]} squares need {markers} markers; expected "
                        "at most 1000 (use fewer or larger squares)")
@@ -285,12 +305,13 @@ class BoardDetector:
         return obj.reshape(-1, 3), img.reshape(-1, 2), ids.ravel()
 
 
-def video_frames(path: str | os.PathLike, *,
-                 what: str = "video") -> Iterator[tuple[int, float, np.ndarray]]:
+def video_frames(path: str | os.PathLike, *, what: str = "video", progress: bool = False,
+                 desc: str | None = None) -> Iterator[tuple[int, float, np.ndarray]]:
     """Yield ``(index, time_s, grey uint8)`` for each frame of a video, with its timestamp.
 
     Times come from the container (``CAP_PROP_POS_MSEC``, so variable frame rates are kept)
     and fall back to ``index / fps`` where the container gives none or they do not increase.
+    With ``progress``, a bar named ``desc`` counts the frames against the container's count.
 
     Raises
     ------
@@ -305,6 +326,8 @@ def video_frames(path: str | os.PathLike, *,
         raise LtmError(f"{what} {str(path)!r} cannot be opened by OpenCV (not a video, or an "
                        "unsupported codec; expected e.g. FFV1 .mkv or mp4v .mp4)")
     fps = float(cap.get(cv2.CAP_PROP_FPS)) or 30.0
+    count = int(max(cap.get(cv2.CAP_PROP_FRAME_COUNT), 0))
+    bar = tqdm(total=count or None, disable=not progress, desc=desc, unit="frame")
     last = -math.inf
     n = 0
     try:
@@ -319,17 +342,9 @@ def video_frames(path: str | os.PathLike, *,
             gray = bgr if bgr.ndim == 2 else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
             yield n, t, gray
             n += 1
+            bar.update()
     finally:
+        bar.close()
         cap.release()
     if n == 0:
         raise LtmError(f"{what} {str(path)!r} yields no frames")
-
-
-def video_info(path: str | os.PathLike) -> tuple[float, int, tuple[int, int]]:
-    """``(fps, frame count or 0, (width, height))`` from the container header."""
-    cap = cv2.VideoCapture(str(path))
-    try:
-        return (float(cap.get(cv2.CAP_PROP_FPS)), int(max(cap.get(cv2.CAP_PROP_FRAME_COUNT), 0)),
-                (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))))
-    finally:
-        cap.release()

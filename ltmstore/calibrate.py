@@ -13,9 +13,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm.auto import tqdm
 
-from ltmstore.board import BoardDetector, BoardSpec, video_frames, video_info
+from ltmstore.board import BoardDetector, BoardSpec, read_spec_json, video_frames
 from ltmstore.errors import LtmError
 
 FORMAT = "ltm-intrinsics/1"
@@ -65,19 +64,15 @@ class Intrinsics:
 def load_intrinsics(path: str | os.PathLike) -> Intrinsics:
     """Read an intrinsics file written by ``ltm calibrate``; one-line errors otherwise."""
     path = Path(path)
-    if not path.is_file():
-        raise LtmError(f"intrinsics file {str(path)!r} does not exist; expected the JSON written "
-                       "by `ltm calibrate`")
+    d = read_spec_json(path, what="intrinsics file", written_by="ltm calibrate")
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
         if d.get("format") != FORMAT:
             raise LtmError(f"intrinsics file {str(path)!r} has format {d.get('format')!r}; "
                            f"expected {FORMAT!r}")
         matrix = np.asarray(d["camera_matrix"], dtype=np.float64)
         dist = np.asarray(d["dist_coeffs"], dtype=np.float64).ravel()
         size = tuple(int(v) for v in d["image_size"])
-    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, KeyError, TypeError,
-            ValueError) as exc:
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise LtmError(f"intrinsics file {str(path)!r} is malformed ({exc}); expected the JSON "
                        "written by `ltm calibrate`") from None
     if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)) or matrix[0, 0] <= 0 \
@@ -114,10 +109,8 @@ def calibrate_video(video: str | os.PathLike, spec: BoardSpec, *, max_views: int
         If the board is seen in fewer than :data:`MIN_VIEWS` frames.
     """
     detector = BoardDetector(spec)
-    _, count, size = video_info(video)
     views, n = [], 0
-    for _i, _t, gray in tqdm(video_frames(video), total=count or None, disable=not progress,
-                             desc="calibrate", unit="frame"):
+    for _i, _t, gray in video_frames(video, progress=progress, desc="calibrate"):
         n += 1
         obj, img, _ = detector.detect(gray)
         if len(obj) >= CALIB_CORNERS:

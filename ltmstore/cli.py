@@ -14,19 +14,19 @@ from ltmstore.errors import LtmError
 EPILOG = "Docs: README.md. Stores open with xarray.open_zarr(STORE, consolidated=False)."
 
 
-def _pair(names: str):
-    """An argparse type for two comma-separated numbers, e.g. ``R,S`` or ``P,Q``."""
-    def parse(text: str) -> tuple[float, float]:
+def _numbers(names: str, unit: str = "plane units"):
+    """An argparse type for comma-separated numbers, e.g. ``R,S``, ``P,Q`` or ``DX,DY,DZ``."""
+    count = len(names.split(","))
+
+    def parse(text: str) -> tuple[float, ...]:
         try:
-            a, b = (float(v) for v in text.split(","))
+            values = tuple(float(v) for v in text.split(","))
         except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"{text!r} must look like {names} (plane units)") from None
-        return a, b
+            values = ()
+        if len(values) != count:
+            raise argparse.ArgumentTypeError(f"{text!r} must look like {names} ({unit})")
+        return values
     return parse
-
-
-_light = _pair("R,S")
 
 
 def _number(text: str) -> float:
@@ -41,6 +41,20 @@ def _print_json(obj) -> None:
     print(json.dumps(obj, indent=2, default=str))
 
 
+def _add_output(p: argparse.ArgumentParser, default: str, what: str) -> None:
+    """``-o/--output`` (a file, ``default``) and ``--overwrite``."""
+    p.add_argument("-o", "--output", default=default, help=f"{what} (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true")
+
+
+def _new_output(a: argparse.Namespace) -> Path:
+    """``--output``, refused when it exists and ``--overwrite`` is not given."""
+    out = Path(a.output)
+    if out.exists() and not a.overwrite:
+        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    return out
+
+
 def cmd_simulate(a: argparse.Namespace) -> None:
     if getattr(a, "raw", False):
         return cmd_simulate_raw(a)
@@ -51,14 +65,6 @@ def cmd_simulate(a: argparse.Namespace) -> None:
                                    size=a.size, overwrite=a.overwrite,
                                    view=getattr(a, "six_d", False), **density)
     _print_json(summary)
-
-
-def _triple(text: str) -> tuple[float, float, float]:
-    try:
-        dx, dy, dz = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} must look like DX,DY,DZ (metres)") from None
-    return dx, dy, dz
 
 
 def cmd_simulate_raw(a: argparse.Namespace) -> None:
@@ -88,9 +94,7 @@ def cmd_calibrate(a: argparse.Namespace) -> None:
     from ltmstore.calibrate import calibrate_video
 
     spec = load_board(a.board)
-    out = Path(a.output)
-    if out.exists() and not a.overwrite:
-        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    out = _new_output(a)
     intr, report = calibrate_video(a.video, spec)
     intr.write(out, {"calibration": report})
     print(f"reprojection error {report['reprojection_rms_px']:.3f} px RMS over "
@@ -160,9 +164,7 @@ def cmd_relight(a: argparse.Namespace) -> None:
     for w in caught:
         print(f"ltm: warning: {w.message}", file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-    out = Path(a.output)
-    if out.exists() and not a.overwrite:
-        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    out = _new_output(a)
     try:
         iio.imwrite(out, encode_images(images, transfer)[0])
     except (OSError, ValueError) as exc:
@@ -339,12 +341,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("relight", help="render the store under new point lights")
     p.add_argument("store")
-    p.add_argument("--light", type=_light, action="append", required=True,
+    p.add_argument("--light", type=_numbers("R,S"), action="append", required=True,
                    help="R,S light position on the plane; repeat to add lights")
-    p.add_argument("--view", type=_pair("P,Q"), default=None, metavar="P,Q",
+    p.add_argument("--view", type=_numbers("P,Q"), default=None, metavar="P,Q",
                    help="6D stores: camera position on the view plane (default: its centre)")
-    p.add_argument("-o", "--output", default="relit.png", help="image file (default: %(default)s)")
-    p.add_argument("--overwrite", action="store_true")
+    _add_output(p, "relit.png", "image file")
     p.set_defaults(func=cmd_relight)
 
     p = sub.add_parser("evaluate", help="held-out error; SNR_Y, PSNR, error maps against a truth",
@@ -383,9 +384,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate", help="phone A's camera intrinsics from a video of the board")
     p.add_argument("video", help="video of the board from varied angles")
     p.add_argument("--board", required=True, help="board spec JSON from `ltm board`")
-    p.add_argument("-o", "--output", default="intrinsics.json",
-                   help="intrinsics file (default: %(default)s)")
-    p.add_argument("--overwrite", action="store_true")
+    _add_output(p, "intrinsics.json", "intrinsics file")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("track", help="light positions (poses.csv) from phone A's video",
@@ -396,7 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("video", help="phone A's video")
     p.add_argument("--board", required=True, help="board spec JSON from `ltm board`")
     p.add_argument("--intrinsics", required=True, help="JSON from `ltm calibrate`")
-    p.add_argument("--led-offset", type=_triple, default=(0.0, 0.0, 0.0),
+    p.add_argument("--led-offset", type=_numbers("DX,DY,DZ", "metres"), default=(0.0, 0.0, 0.0),
                    help="LED position from the camera, metres, camera axes (x right, y down, "
                    "z along the view), e.g. 0.012,0,0")
     p.add_argument("--height", type=_number, help="plane height for the out-of-plane flag "
@@ -405,8 +404,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="largest RMS reprojection error, px at 1280 wide (default: %(default)s)")
     p.add_argument("--max-tilt", type=_number, default=20.0,
                    help="largest tilt from the board normal, degrees (default: %(default)s)")
-    p.add_argument("-o", "--output", default="poses.csv", help="default: %(default)s")
-    p.add_argument("--overwrite", action="store_true")
+    _add_output(p, "poses.csv", "poses file")
     p.set_defaults(func=cmd_track)
 
     p = sub.add_parser("sync", help="estimate the clock offset of poses and video B",

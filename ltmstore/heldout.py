@@ -30,7 +30,7 @@ import numpy as np
 from ltmstore.dims import SAMPLES, Lattice
 from ltmstore.errors import LtmError
 from ltmstore.solve import Geometry, Method, get_method
-from ltmstore.store import open_store
+from ltmstore.store import open_store, stages
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,7 +199,7 @@ def observed_range(samples: np.ndarray) -> np.ndarray:
 
 def store_geometry(ds) -> Geometry:
     """The lattice and plane height of a resampled store (from its provenance)."""
-    entry = stages_of(ds).get("resample", {})
+    entry = stages(ds).get("resample", {})
     try:
         lat = entry["lattice"]
         lattice = Lattice(bounds=tuple(tuple(float(v) for v in b) for b in lat["bounds"]),
@@ -209,11 +209,6 @@ def store_geometry(ds) -> Geometry:
         raise LtmError(f"store has no usable resample record ({exc}); run ltm reconstruct") \
             from exc
     return Geometry(lattice=lattice, height=height)
-
-
-def stages_of(ds) -> dict:
-    """Stage records of an opened store (its ``stages`` attribute)."""
-    return dict(ds.attrs.get("stages", {}))
 
 
 def _pick_pixels(arr, max_pixels: int, rng: np.random.Generator) -> np.ndarray:

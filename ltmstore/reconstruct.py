@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import asdict, dataclass
+from functools import partial
 
 import dask.array as da
 import numpy as np
@@ -76,8 +77,13 @@ class TilePlan:
         return (*self.tile, *self.lattice_chunk)
 
     @property
+    def grid(self) -> tuple[int, int]:
+        """Tiles along ``y`` and ``x``: the shape of the tile completion marks."""
+        return tuple(-(-n // t) for n, t in zip(self.image, self.tile, strict=True))
+
+    @property
     def n_tiles(self) -> int:
-        return int(np.prod([-(-n // t) for n, t in zip(self.image, self.tile, strict=True)]))
+        return int(np.prod(self.grid))
 
 
 def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 32,
@@ -270,17 +276,18 @@ def _pick_lattice(plane: Plane, r, s, valid, lattice, delta_rs) -> tuple[Lattice
     return choose_lattice(plane, r, s, valid), "automatic"
 
 
-def _resumable(group: zarr.Group, key: dict, names: list[str], plan: TilePlan) -> bool:
-    """Whether an interrupted run of the same ``key`` left complete samples and tile marks."""
+def _resumable(group: zarr.Group, key: dict, plan: TilePlan, names: list[str],
+               ltm_names: list[str]) -> bool:
+    """Whether an interrupted run of the same ``key`` left complete samples, the variables
+    ``names`` and the tile marks of every LTM in ``ltm_names``."""
     entry = st.stages(group)
     rec, res = entry.get("reconstruct") or {}, entry.get("resample") or {}
     if rec.get("complete") or not res.get("complete") or rec.get("run") != key:
         return False
-    ntiles = tuple(-(-n // t) for n, t in zip(plan.image, plan.tile, strict=True))
-    return all(n in group for n in names) and all(
-        group[tiles_name(n)].shape == ntiles if tiles_name(n) in group else False
-        for n in names if n in (LTM, *CHROMA_LTM.values())) and (
-        group[SAMPLES].shape == (*plan.image, *plan.lattice))
+    return (all(n in group for n in names)
+            and all(tiles_name(n) in group and group[tiles_name(n)].shape == plan.grid
+                    for n in ltm_names)
+            and group[SAMPLES].shape == (*plan.image, *plan.lattice))
 
 
 def tiles_name(variable: str) -> str:
@@ -308,11 +315,15 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
                   color=color, tile=tile)
     ltm_names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]
     sample_names = [SAMPLES, *(CHROMA_SAMPLES[c] for c in CHROMA_CHANNELS if color)]
-    if resume and _resumable(group, key, [*sample_names, *ltm_names, EXPECTED_ERROR,
-                                          UNSUPPORTED], plan):
-        return _solve_stage(group, client, binning, plan, plane, chosen, key, r, s, valid,
-                            method=method, params=params, auto=auto, color=color,
-                            progress=progress, timings={"resample_s": 0.0}, resumed=True)
+    sampling = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k,
+                "M": binning.m, "sampling_ratio": binning.ratio,
+                "path_density": path_length(r, s, valid=valid) / plane.area}
+    solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height), plan=plan,
+                      sampling=sampling, key=key, method=method, params=params, auto=auto,
+                      color=color, progress=progress)
+    if resume and _resumable(group, key, plan, [*sample_names, *ltm_names, EXPECTED_ERROR,
+                                                UNSUPPORTED], ltm_names):
+        return _solve_stage(group, client, **solve_args, timings={"resample_s": 0.0}, resumed=True)
 
     st.begin_stage(group, "resample")
     st.begin_stage(group, "reconstruct", {"run": key})
@@ -325,50 +336,38 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
         chroma = da.from_zarr(group[FRAME_CHROMA])
         for i, c in enumerate(CHROMA_CHANNELS):
             _write_samples(group, CHROMA_SAMPLES[c], chroma[i], binning, plan, client)
-    density = path_length(r, s, valid=valid) / plane.area
-    sampling = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k,
-                "M": binning.m, "sampling_ratio": binning.ratio, "path_density": density}
     st.complete_stage(group, "resample", {
         **sampling, "frames_used": int((binning.cell >= 0).sum())})
     timings["resample_s"] = time.perf_counter() - start
 
-    ntiles = tuple(-(-n // t) for n, t in zip(plan.image, plan.tile, strict=True))
     for name in ltm_names:
         st.create_variable(group, name, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
                            chunks=plan.chunks, shards=plan.shards)
-        st.create_variable(group, tiles_name(name), ("tile_y", "tile_x"), ntiles,
+        st.create_variable(group, tiles_name(name), ("tile_y", "tile_x"), plan.grid,
                            chunks=(1, 1), dtype=str, fill_value="")
     st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
     st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image, chunks=plan.tile, dtype=bool,
                        fill_value=True)
-    return _solve_stage(group, client, binning, plan, plane, chosen, key, r, s, valid,
-                        method=method, params=params, auto=auto, color=color,
-                        progress=progress, timings=timings, resumed=False)
+    return _solve_stage(group, client, **solve_args, timings=timings, resumed=False)
 
 
-def _solve_stage(group: zarr.Group, client: Client, binning: Binning, plan: TilePlan,
-                 plane: Plane, chosen: str, key: dict, r, s, valid, *, method: str,
-                 params: dict, auto: bool, color: bool, progress: bool, timings: dict,
-                 resumed: bool) -> dict:
+def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan: TilePlan,
+                 sampling: dict, key: dict, method: str, params: dict, auto: bool, color: bool,
+                 progress: bool, timings: dict, resumed: bool) -> dict:
     """Solve every tile not yet marked done (all of them in a fresh run); complete the stage."""
-    lat = binning.lattice
     start = time.perf_counter()
-    geometry = Geometry(lattice=lat, height=plane.height)
     out = {LTM: group[LTM], EXPECTED_ERROR: group[EXPECTED_ERROR],
            UNSUPPORTED: group[UNSUPPORTED], TILES: group[tiles_name(LTM)]}
-    records, solved = _solve_tiles(group[SAMPLES], out, plan, geometry, method, params, auto,
-                                   client, progress)
+    solve = partial(_solve_tiles, plan=plan, geometry=geometry, method=method, params=params,
+                    client=client, progress=progress)
+    records, solved = solve(group[SAMPLES], out, auto=auto)
     for c in CHROMA_CHANNELS if color else ():  # the colour LTM: same method, default params
         chroma_out = {LTM: group[CHROMA_LTM[c]], TILES: group[tiles_name(CHROMA_LTM[c])]}
-        solved += _solve_tiles(group[CHROMA_SAMPLES[c]], chroma_out, plan, geometry, method,
-                               params, False, client, progress)[1]
+        solved += solve(group[CHROMA_SAMPLES[c]], chroma_out, auto=False)[1]
     timings["solve_s"] = time.perf_counter() - start
     passes = 1 + len(CHROMA_CHANNELS) * bool(color)
-    density = path_length(r, s, valid=valid) / plane.area
-    info = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k, "M": binning.m,
-            "sampling_ratio": binning.ratio, "path_density": density, "method": method,
-            "params": params, "auto": auto, "color": color, "run": key,
-            "chosen_per_tile": summarise_choices(records), "plan": asdict(plan),
+    info = {**sampling, "method": method, "params": params, "auto": auto, "color": color,
+            "run": key, "chosen_per_tile": summarise_choices(records), "plan": asdict(plan),
             "heldout_error": _mean_heldout(records), "tiles_total": plan.n_tiles * passes,
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
@@ -391,7 +390,7 @@ def _mean_heldout(records: list[dict]) -> float | None:
     return float(np.mean(errors)) if errors else None
 
 
-def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], plan: TilePlan,
+def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TilePlan,
                  geometry: Geometry, method: str, params: dict, auto: bool, client: Client,
                  progress: bool) -> tuple[list[dict], int]:
     """Run one Dask task per pixel tile not yet marked done in ``out[TILES]``.

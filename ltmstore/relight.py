@@ -50,6 +50,19 @@ def _bilinear(centres: np.ndarray, value: float) -> tuple[int, int, float]:
     return i0, i0 + 1, pos - i0
 
 
+def _cell_weights(a: tuple[str, np.ndarray, float],
+                  b: tuple[str, np.ndarray, float]) -> list[tuple[dict, float]]:
+    """Bilinear weights over two lattice axes, each ``(dim, centres, value)``:
+    ``[({dim_a: i, dim_b: j}, w)]`` with zero weights left out."""
+    (dim_a, ca, va), (dim_b, cb, vb) = a, b
+    i0, i1, wa = _bilinear(ca, va)
+    j0, j1, wb = _bilinear(cb, vb)
+    cells = [((i0, j0), (1 - wa) * (1 - wb)), ((i1, j0), wa * (1 - wb)),
+             ((i0, j1), (1 - wa) * wb), ((i1, j1), wa * wb)]
+    return ([({dim_a: i, dim_b: j}, w) for (i, j), w in cells if w > 0]
+            or [({dim_a: i0, dim_b: j0}, 1.0)])
+
+
 def light_weights(ltm: xr.DataArray, light: tuple[float, float],
                   plane: Plane | None = None) -> list[tuple[dict, float]]:
     """Bilinear weights of a point light: a list of ``({r: i, s: j}, weight)``.
@@ -66,11 +79,7 @@ def light_weights(ltm: xr.DataArray, light: tuple[float, float],
     if outside:
         warnings.warn(f"light ({r:g}, {s:g}) lies outside the lattice; clamped to its edge",
                       LightClampWarning, stacklevel=3)
-    i0, i1, wr = _bilinear(rc, r)
-    j0, j1, ws = _bilinear(sc, s)
-    cells = [((i0, j0), (1 - wr) * (1 - ws)), ((i1, j0), wr * (1 - ws)),
-             ((i0, j1), (1 - wr) * ws), ((i1, j1), wr * ws)]
-    return [({"r": i, "s": j}, w) for (i, j), w in cells if w > 0] or [({"r": i0, "s": j0}, 1.0)]
+    return _cell_weights(("r", rc, r), ("s", sc, s))
 
 
 def view_weights(ltm: xr.DataArray, view: tuple[float, float],
@@ -87,11 +96,7 @@ def view_weights(ltm: xr.DataArray, view: tuple[float, float],
     if not (p0 <= p <= p1 and q0 <= q <= q1):
         warnings.warn(f"view ({p:g}, {q:g}) lies outside the view lattice; clamped to its edge",
                       LightClampWarning, stacklevel=3)
-    i0, i1, wp = _bilinear(pc, p)
-    j0, j1, wq = _bilinear(qc, q)
-    cells = [((i0, j0), (1 - wp) * (1 - wq)), ((i1, j0), wp * (1 - wq)),
-             ((i0, j1), (1 - wp) * wq), ((i1, j1), wp * wq)]
-    return [({P: i, Q: j}, w) for (i, j), w in cells if w > 0] or [({P: i0, Q: j0}, 1.0)]
+    return _cell_weights((P, pc, p), (Q, qc, q))
 
 
 def _views(ds: xr.Dataset, view, n: int) -> tuple[np.ndarray, list] | tuple[None, None]:

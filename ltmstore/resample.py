@@ -60,35 +60,38 @@ def bin_positions(lattice: Lattice, positions: tuple[np.ndarray, ...],
     return Binning(lattice=lattice, cell=cell, count=count)
 
 
+def _runs(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The used frames (``cells >= 0``) sorted by cell (stable), where each cell's run starts in
+    that order, and the cell of each run; all empty when no frame is used."""
+    used = np.flatnonzero(cells >= 0)
+    if not used.size:
+        return used, used, used
+    order = used[np.argsort(cells[used], kind="stable")]
+    sorted_cells = cells[order]
+    starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+    return order, starts, sorted_cells[starts]
+
+
 def _block_sums(block: np.ndarray, cells: np.ndarray, *, m: int) -> np.ndarray:
     """Per-cell sums of one block of frames: ``(t, y, x)`` -> ``(1, y, x, M)``."""
-    cells = cells[:, 0, 0]
-    used = np.flatnonzero(cells >= 0)
+    order, starts, idx = _runs(cells[:, 0, 0])
     out = np.zeros((1, *block.shape[1:], m), dtype=np.float32)
-    if used.size:
-        order = used[np.argsort(cells[used], kind="stable")]
-        sorted_cells = cells[order]
-        starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+    if order.size:
         sums = np.add.reduceat(block[order].astype(np.float32), starts, axis=0)
-        out[0][..., sorted_cells[starts]] = np.moveaxis(sums, 0, -1)
+        out[0][..., idx] = np.moveaxis(sums, 0, -1)
     return out
 
 
 def _block_sums_masked(block: np.ndarray, cells: np.ndarray, *, k: int) -> np.ndarray:
     """Per-cell sums and finite counts of one block of frames with NaN:
     ``(t, y, x)`` -> ``(1, y, x, 2 K)`` (sums, then counts), over compact cell indices."""
-    cells = cells[:, 0, 0]
-    used = np.flatnonzero(cells >= 0)
+    order, starts, idx = _runs(cells[:, 0, 0])
     out = np.zeros((1, *block.shape[1:], 2 * k), dtype=np.float32)
-    if used.size:
-        order = used[np.argsort(cells[used], kind="stable")]
-        sorted_cells = cells[order]
-        starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+    if order.size:
         values = block[order].astype(np.float32)
         finite = np.isfinite(values)
         sums = np.add.reduceat(np.where(finite, values, 0), starts, axis=0)
         counts = np.add.reduceat(finite.astype(np.float32), starts, axis=0)
-        idx = sorted_cells[starts]
         out[0][..., idx] = np.moveaxis(sums, 0, -1)
         out[0][..., k + idx] = np.moveaxis(counts, 0, -1)
     return out

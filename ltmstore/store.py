@@ -59,19 +59,31 @@ def new_store(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[z
         group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         group.attrs[STAGES_ATTR] = {}
         yield group
-        if path.exists():
-            old = parent / f".{path.name}.old-{os.getpid()}"
-            path.rename(old)
-            tmp.rename(path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(path)
+        swap_in(tmp, path)
     except OSError as exc:
         shutil.rmtree(tmp, ignore_errors=True)
         raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}") from exc
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def swap_in(side: Path, path: Path) -> None:
+    """Move the complete store at ``side`` to ``path``.
+
+    A store already at ``path`` is moved aside first, put back if the move fails and removed
+    only after it succeeded. Raises :class:`OSError` as the file system does.
+    """
+    old = path.parent / f".{path.name}.old-{os.getpid()}"
+    if path.exists():
+        path.rename(old)
+    try:
+        side.rename(path)
+    except OSError:
+        if old.exists() and not path.exists():
+            old.rename(path)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def revision_path(path: str | os.PathLike) -> Path:
@@ -101,10 +113,7 @@ def revised_store(path: str | os.PathLike) -> Iterator[Path]:
         if not side.exists():
             shutil.copytree(path, side, copy_function=_link_or_copy)
         yield side
-        old = path.parent / f".{path.name}.old-{os.getpid()}"
-        path.rename(old)
-        side.rename(path)
-        shutil.rmtree(old, ignore_errors=True)
+        swap_in(side, path)
     except BaseException:
         shutil.rmtree(side, ignore_errors=True)
         raise

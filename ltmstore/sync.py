@@ -28,12 +28,13 @@ import os
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
 from ltmstore.acquisition import load_acquisition, load_poses
-from ltmstore.board import video_info
 from ltmstore.errors import LtmError
+from ltmstore.ingest import VideoReader, transfer_lut
 
 GRID = 6  # blocks per image side
 DEGREE = 3  # polynomial degree in (r, s)
@@ -50,10 +51,6 @@ def block_brightness(video: str | os.PathLike, transfer: str, *, grid: int = GRI
                      progress: bool = True) -> tuple[np.ndarray, float]:
     """Mean linear brightness of ``grid x grid`` blocks of every frame, ``(n, grid * grid)``,
     and the frame rate."""
-    import cv2
-
-    from ltmstore.ingest import VideoReader, transfer_lut
-
     lut = transfer_lut(transfer)
     rows = []
     with VideoReader(Path(video)) as reader:
@@ -95,17 +92,24 @@ class OffsetCost:
         self.min_rows = int(MIN_OVERLAP * min(len(self.t), (tp[-1] - tp[0]) * fps))
         self.n_params = _basis(np.zeros(1), np.zeros(1), np.ones(1), self.scale).shape[1] + 1
 
+    def lights(self, tau: float) -> tuple[np.ndarray, np.ndarray | None]:
+        """Frames of video B used at offset ``tau`` and the light ``(3, n)`` at each, or None
+        when too few frames overlap the poses."""
+        use = self.rows(tau)
+        if int(use.sum()) < max(self.min_rows, 3 * self.n_params):
+            return use, None
+        u = self.t[use] - tau
+        p = self.poses
+        return use, np.stack([np.interp(u, p.t, c) for c in (p.r, p.s, p.z)])
+
     def coarse(self, tau: float) -> float:
         """Fraction of the total brightness's variance that the physical falloff of a flat
         diffuse plane leaves unexplained (best of a few centres near the plane centre; one
         gain and one bias: too rigid to fit a wrong offset well)."""
-        use = self.rows(tau)
-        n = int(use.sum())
-        if n < max(self.min_rows, 3 * self.n_params):
+        use, light = self.lights(tau)
+        if light is None:
             return math.inf
-        u = self.t[use] - tau
-        p = self.poses
-        r, s, z = (np.interp(u, p.t, c) for c in (p.r, p.s, p.z))
+        r, s, z = light
         y = self.total[use] - self.total[use].mean()
         best = 0.0
         for cr, cs in KERNEL_CENTRES:
@@ -126,15 +130,11 @@ class OffsetCost:
     def __call__(self, tau: float) -> tuple[float, int]:
         """Fraction of brightness variance left unexplained (adjusted for the number of
         parameters), and frames used."""
-        use = self.rows(tau)
+        use, light = self.lights(tau)
         n = int(use.sum())
-        if n < max(self.min_rows, 3 * self.n_params):
+        if light is None:
             return math.inf, n
-        u = self.t[use] - tau
-        p = self.poses
-        a = _basis(np.interp(u, p.t, p.r), np.interp(u, p.t, p.s), np.interp(u, p.t, p.z),
-                   self.scale)
-        a = np.column_stack([np.ones(n), a])
+        a = np.column_stack([np.ones(n), _basis(*light, self.scale)])
         y = self.y[use]
         coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         resid = y - a @ coef
@@ -191,14 +191,13 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
     tau = float(fine[j])
     if 0 < j < len(fine) - 1 and np.all(np.isfinite(fine_costs[j - 1:j + 2])):
         c0, c1, c2 = fine_costs[j - 1:j + 2]
-        curv = (c0 - 2 * c1 + c2) / FINE_STEP**2
-        if curv > 0:
+        if c0 - 2 * c1 + c2 > 0:  # a parabola through the minimum: sub-step vertex
             tau -= 0.5 * FINE_STEP * (c2 - c0) / (c0 - 2 * c1 + c2)
     best, used = cost(tau)
     # standard error: RSS(tau) ~ RSS_min (1 + curv/2 dtau^2); var(tau) = 2 sigma^2 / RSS''
-    wide = fine_costs[np.abs(fine - tau) <= 4 * FINE_STEP + 1e-12]
-    span = fine[np.abs(fine - tau) <= 4 * FINE_STEP + 1e-12]
-    curv = float(np.polyfit(span - tau, wide, 2)[0] * 2) if len(span) >= 3 else math.nan
+    near = np.abs(fine - tau) <= 4 * FINE_STEP + 1e-12
+    curv = (float(np.polyfit(fine[near] - tau, fine_costs[near], 2)[0] * 2)
+            if near.sum() >= 3 else math.nan)
     dof = max(used - cost.n_params, 1)
     stderr = math.sqrt(2 * best / dof / curv) if curv > 0 else math.inf
     runner = _runner_up(taus, costs, taus[k], 2 / fps)
@@ -263,8 +262,8 @@ def sync_acquisition(acq_dir: str | os.PathLike, *, max_offset: float = DEFAULT_
         raise LtmError(f"{str(meta_path)} already declares time_offset "
                        f"{acq.raw['time_offset']!r}; pass --overwrite to estimate it again")
     poses = load_poses(acq.poses)
-    fps, count, _ = video_info(acq.video)
-    span_b = count / fps if fps > 0 else 0.0
+    with VideoReader(acq.video) as reader:  # the header alone: fail fast on different lengths
+        span_b = (reader.frame_count or 0) / reader.fps
     span_p = float(poses.t[-1] - poses.t[0])
     if span_b and (abs(span_b - span_p) > 2 * max_offset
                    or min(span_b, span_p) < MIN_OVERLAP * max(span_b, span_p)):

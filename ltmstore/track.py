@@ -18,14 +18,13 @@ Outputs, so that ``ltm ingest`` takes them unchanged:
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm.auto import tqdm
 
-from ltmstore.board import MIN_CORNERS, BoardDetector, BoardSpec, video_frames, video_info
+from ltmstore.board import MIN_CORNERS, BoardDetector, BoardSpec, video_frames
 from ltmstore.calibrate import Intrinsics
 from ltmstore.errors import LtmError
 
@@ -34,6 +33,7 @@ MAX_TILT_DEG = 20.0
 Z_TOLERANCE_FRACTION = 0.05  # as ingest: of the plane height
 MIN_TRACKED_FRACTION = 0.2
 STATUSES = ("ok", "no_board", "poor_pose", "tilted", "out_of_plane")
+WRITTEN = ("ok", "out_of_plane")  # statuses of the frames written to poses.csv
 
 
 @dataclass(frozen=True)
@@ -136,10 +136,8 @@ def track_video(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics,
         found in fewer than :data:`MIN_TRACKED_FRACTION` of the frames.
     """
     detector = BoardDetector(spec)
-    _, count, size = video_info(video)
     results = []
-    for i, t, gray in tqdm(video_frames(video, what="video A"), total=count or None,
-                           disable=not progress, desc="track", unit="frame"):
+    for i, t, gray in video_frames(video, what="video A", progress=progress, desc="track"):
         if i == 0 and tuple(gray.shape[::-1]) != tuple(intr.image_size):
             raise LtmError(f"video A {str(video)!r} is {gray.shape[1]}x{gray.shape[0]} but the "
                            f"intrinsics are for {intr.image_size[0]}x{intr.image_size[1]}; "
@@ -160,12 +158,8 @@ def _flag_out_of_plane(results: list[FramePose], config: TrackConfig) -> list[Fr
     z = np.array([r.led[2] for r in results if r.status == "ok"])
     height = float(np.median(z)) if config.height is None else float(config.height)
     tol = Z_TOLERANCE_FRACTION * abs(height) if config.z_tolerance is None else config.z_tolerance
-    out = []
-    for r in results:
-        if r.status == "ok" and abs(r.led[2] - height) > tol:
-            r = FramePose(r.t, r.led, r.corners, r.reprojection_px, r.tilt_deg, "out_of_plane")
-        out.append(r)
-    return out
+    return [replace(r, status="out_of_plane")
+            if r.status == "ok" and abs(r.led[2] - height) > tol else r for r in results]
 
 
 def write_tracks(out: str | os.PathLike, results: list[FramePose]) -> dict:
@@ -175,7 +169,7 @@ def write_tracks(out: str | os.PathLike, results: list[FramePose]) -> dict:
     """
     out = Path(out)
     frames_csv = out.with_name(out.stem + ".frames.csv")
-    keep = [r for r in results if r.status in ("ok", "out_of_plane")]
+    keep = [r for r in results if r.status in WRITTEN]
     rows = "".join(f"{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f}\n" for r in keep)
     detail = "".join(f"{i},{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f},{r.corners},"
                      f"{r.reprojection_px:.4f},{r.tilt_deg:.3f},{r.status}\n"
@@ -225,13 +219,13 @@ def track(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics, out: str 
         raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
     results = track_video(video, spec, intr, config, progress=progress)
     paths = write_tracks(out, results)
-    ok = [r for r in results if r.status in ("ok", "out_of_plane")]
-    t = np.array([r.t for r in ok])
-    rms = np.array([r.reprojection_px for r in ok])
-    return {"frames": len(results), "rows": len(ok),
+    kept = [r for r in results if r.status in WRITTEN]
+    t = np.array([r.t for r in kept])
+    rms = np.array([r.reprojection_px for r in kept])
+    return {"frames": len(results), "rows": len(kept),
             "status": {s: sum(r.status == s for r in results) for s in STATUSES},
-            "height": float(np.median([r.led[2] for r in ok])),
+            "height": float(np.median([r.led[2] for r in kept])),
             "reprojection_px": {"median": float(np.median(rms)),
                                 "p95": float(np.percentile(rms, 95))},
-            "corners": float(np.median([r.corners for r in ok])),
+            "corners": float(np.median([r.corners for r in kept])),
             "longest_gap_s": float(np.diff(t).max()) if len(t) > 1 else 0.0, **paths}

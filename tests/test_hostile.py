@@ -5,7 +5,6 @@ marked complete after an error. ``HOSTILE_CASES`` counts the generated cases of 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -19,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from archive_helpers import tree_digest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ingest_helpers import make_acquisition
@@ -36,11 +36,6 @@ HOSTILE_CASES: Counter = Counter()
 CASES = {"json": 400, "poses": 400, "lp": 400, "images": 150, "video": 60}
 SETTINGS = {"deadline": None, "derandomize": True, "database": None,
             "suppress_health_check": list(HealthCheck)}
-
-
-def digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file() and not p.is_symlink()}
 
 
 def outcome(fn):
@@ -118,14 +113,14 @@ def base():
 
 def test_acquisition_json(base):
     folder = _folder(base / "json")
-    outside = digest(base / "json")
+    outside = tree_digest(base / "json")
 
     @settings(max_examples=CASES["json"], **SETTINGS)
     @given(JSON_FILES)
     def case(data: bytes):
         HOSTILE_CASES["json"] += 1
         (folder / "acquisition.json").write_bytes(data)
-        before = digest(base / "json")
+        before = tree_digest(base / "json")
         kind, result = outcome(lambda: load_acquisition(folder))
         if kind == "ok":
             assert inside(result.video, folder) and result.video.is_file()
@@ -133,11 +128,11 @@ def test_acquisition_json(base):
             assert result.transfer in TRANSFERS and math.isfinite(result.time_offset)
             plane = result.plane
             assert 0 < plane.area < math.inf and 0 < plane.height < math.inf
-        assert digest(base / "json") == before
+        assert tree_digest(base / "json") == before
 
     case()
     (folder / "acquisition.json").unlink()
-    assert digest(base / "json") == outside  # the traps and the files they point at
+    assert tree_digest(base / "json") == outside  # the traps and the files they point at
     assert HOSTILE_CASES["json"] >= CASES["json"]
 
 
@@ -203,7 +198,7 @@ def test_lp_files(base):
     (folder / "link_out.png").symlink_to(base / "out.png")
     (folder / "loop.png").symlink_to(folder / "loop.png")
     path = folder / "dirs.lp"
-    images = digest(base / "lp")
+    images = tree_digest(base / "lp")
 
     @settings(max_examples=CASES["lp"], **SETTINGS)
     @given(LP_FILES)
@@ -222,7 +217,7 @@ def test_lp_files(base):
 
     case()
     path.unlink()
-    assert digest(base / "lp") == images
+    assert tree_digest(base / "lp") == images
     assert HOSTILE_CASES["lp"] >= CASES["lp"]
 
 
@@ -264,6 +259,18 @@ def assert_complete(store: Path) -> None:
     assert frames.shape[0] > 0 and np.isfinite(frames).all()
 
 
+def check_ingest(folder: Path, store: Path, run) -> None:
+    """``run`` an ingest of ``folder`` into ``store``: the inputs are untouched and the store is
+    complete (then removed) or absent, with nothing left beside it."""
+    before = tree_digest(folder)
+    kind, _ = outcome(run)
+    assert tree_digest(folder) == before
+    if kind == "ok":
+        assert_complete(store)
+        shutil.rmtree(store)
+    assert_no_store(store)
+
+
 def test_corrupt_images_and_huge_declared_sizes(base):
     folder = base / "rti"
     folder.mkdir()
@@ -284,13 +291,7 @@ def test_corrupt_images_and_huge_declared_sizes(base):
     def case(data: bytes):
         HOSTILE_CASES["images"] += 1
         (folder / "im2.png").write_bytes(data)
-        before = digest(folder)
-        kind, _ = outcome(lambda: ingest_rti(folder / "dirs.lp", store, progress=False))
-        assert digest(folder) == before
-        if kind == "ok":
-            assert_complete(store)
-            shutil.rmtree(store)
-        assert_no_store(store)
+        check_ingest(folder, store, lambda: ingest_rti(folder / "dirs.lp", store, progress=False))
 
     case()
     assert HOSTILE_CASES["images"] >= CASES["images"]
@@ -307,13 +308,7 @@ def test_corrupt_videos(base):
     def case(data: bytes):
         HOSTILE_CASES["video"] += 1
         (folder / "video.mkv").write_bytes(data)
-        before = digest(folder)
-        kind, _ = outcome(lambda: ingest(folder, store, progress=False))
-        assert digest(folder) == before
-        if kind == "ok":
-            assert_complete(store)
-            shutil.rmtree(store)
-        assert_no_store(store)
+        check_ingest(folder, store, lambda: ingest(folder, store, progress=False))
 
     case()
     assert HOSTILE_CASES["video"] >= CASES["video"]
@@ -333,14 +328,14 @@ def test_archive_entries_leaving_the_root(base, tmp_path):
     meta = json.loads((root / "dotdot" / "acquisition.json").read_text())
     (root / "dotdot" / "acquisition.json").write_text(json.dumps({**meta,
                                                                   "video": "../../x.mkv"}))
-    before = digest(outside)
+    before = tree_digest(outside)
     entries = {e.name: e for e in archive_status(root, ArchiveParams())}
     assert {k: e.status for k, e in entries.items()} == {
         "dotdot": "failed", "linked": "failed", "store-out": "failed"}
     assert "leaves the archive root" in entries["linked"].reason
     assert "leaves the archive root" in entries["store-out"].reason
     assert "leaves the folder" in entries["dotdot"].reason
-    assert digest(outside) == before
+    assert tree_digest(outside) == before
 
 
 @pytest.mark.parametrize("case", ["lp-nul-name", "huge-png", "deep-json"])

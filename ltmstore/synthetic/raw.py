@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import lru_cache
@@ -37,6 +36,7 @@ from tqdm.auto import tqdm
 
 from ltmstore.board import BoardSpec, board_image, board_spec, page_image
 from ltmstore.calibrate import Intrinsics
+from ltmstore.dims import LUMA
 from ltmstore.errors import LtmError
 from ltmstore.synthetic import writer
 from ltmstore.synthetic.render import render_ltm
@@ -49,7 +49,6 @@ from ltmstore.synthetic.simulate import (
     video_frames,
     write_truth,
 )
-from ltmstore.synthetic.trajectory import sampling_ratio
 
 CAMERA_SIZE = (1280, 720)
 FOCAL_PX = 1000.0  # at 1280 px wide: a 65 degree horizontal field of view
@@ -249,7 +248,7 @@ def simulate_raw(out: str | os.PathLike, *, scene: str = "canvas",
     if time_offset is None:
         rng = np.random.default_rng([seed, 808])
         time_offset = float(rng.choice([-1, 1]) * rng.uniform(*OFFSET_RANGE))
-    folder = _prepare(Path(out), overwrite)
+    folder = writer.prepare_folder(Path(out), OUTPUTS, overwrite=overwrite)
     spec = board_spec(BOARD_PAPER, square_mm=BOARD_SQUARE_MM)
     try:
         return _execute(plan, folder, spec, camera, float(time_offset), calibration_views,
@@ -264,7 +263,7 @@ def _execute(plan: SimulationPlan, folder: Path, spec: BoardSpec, camera: PhoneC
     (folder / "truth").mkdir(exist_ok=True)
     (folder / "board.json").write_text(json.dumps(spec.to_json(), indent=2) + "\n")
     cv2.imwrite(str(folder / "board.png"), page_image(spec, dpi=50))
-    albedo = plan.scene.albedo @ np.array([0.299, 0.587, 0.114])
+    albedo = plan.scene.albedo @ LUMA
     view = BoardView(spec, camera, albedo, plan.scene.shape[1] * plan.scene.pixel_size)
     if calibration_views:
         frames = (cv2.cvtColor(f, cv2.COLOR_GRAY2RGB) for f in
@@ -277,7 +276,7 @@ def _execute(plan: SimulationPlan, folder: Path, spec: BoardSpec, camera: PhoneC
                        (cv2.cvtColor(f, cv2.COLOR_GRAY2RGB) for f in frames), fps=writer.FPS)
     ltm = render_ltm(plan.scene, plan.lattice, plan.plane.height, progress=progress)
     exposure = EXPOSURE_PEAK / float(ltm.max())
-    km = sampling_ratio(*plan.frame_lights()[:, :2].T, plan.lattice)
+    km = plan.sampling_ratio()
     if truth:
         ltm *= np.float32(exposure)
         write_truth(folder / "truth.zarr", plan, ltm, exposure=exposure, sampling_ratio=km)
@@ -285,8 +284,8 @@ def _execute(plan: SimulationPlan, folder: Path, spec: BoardSpec, camera: PhoneC
     frames = tqdm(video_frames(plan, exposure=exposure), total=plan.frame_count,
                   disable=not progress, desc="phone B", unit="frame")
     n = writer.write_video(folder / "video.mkv", frames, fps=writer.FPS)
-    led = np.column_stack(plan.trajectory.at(times_a)[:3])
-    writer.write_poses(folder / "truth" / "poses_true.csv", times_a - plan.video_start, *led.T)
+    writer.write_poses(folder / "truth" / "poses_true.csv", times_a - plan.video_start,
+                       *plan.trajectory.at(times_a)[:3])
     Intrinsics(camera.size, camera.matrix, np.zeros(5)).write(folder / "truth" / "intrinsics.json")
     info = {"time_offset": offset, "led_offset": list(camera.led_offset),
             "camera": {"size": list(camera.size), "focal_px": camera.focal_px},
@@ -304,23 +303,3 @@ def _execute(plan: SimulationPlan, folder: Path, spec: BoardSpec, camera: PhoneC
               "truth": "truth.zarr", "truth_poses": "truth/poses_true.csv"}.items()}
     return {**info, "paths": paths}
 
-
-def _prepare(folder: Path, overwrite: bool) -> Path:
-    if folder.exists() and not folder.is_dir():
-        raise LtmError(f"output {str(folder)!r} exists and is not a folder")
-    if folder.is_dir() and any(folder.iterdir()):
-        if not overwrite:
-            raise LtmError(f"output folder {str(folder)!r} is not empty; pass --overwrite to "
-                           "replace an earlier simulation there")
-        for name in OUTPUTS:
-            target = folder / name
-            if target.is_dir():
-                shutil.rmtree(target)
-            elif target.exists():
-                target.unlink()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise LtmError(f"cannot create output folder {str(folder)!r}: {exc.strerror or exc}") \
-            from exc
-    return folder

@@ -248,5 +248,6 @@ def overshoot(samples: np.ndarray, estimate: np.ndarray) -> np.ndarray:
     hi = np.where(observed, flat, -np.inf).max(axis=1)
     lo = np.where(observed, flat, np.inf).min(axis=1)
     over = np.maximum(np.maximum(lo - est.min(axis=1), est.max(axis=1) - hi), 0.0)
+    scale = observed_scale(samples)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return over / np.where(observed_scale(samples) > 0, observed_scale(samples), 1.0)
+        return over / np.where(scale > 0, scale, 1.0)

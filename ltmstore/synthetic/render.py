@@ -25,7 +25,7 @@ import numpy as np
 from scipy import ndimage
 from tqdm.auto import tqdm
 
-from ltmstore.dims import LIGHT_DIMS, Lattice
+from ltmstore.dims import LIGHT_DIMS, LUMA, VIEW_DIMS, Lattice
 from ltmstore.errors import LtmError
 from ltmstore.synthetic.scenes import Scene
 
@@ -347,8 +347,6 @@ def render_ltm_6d(scene: Scene, lattice: Lattice, height: float, *, distance: fl
     ndarray, shape (H, W, R, S, P, Q), float32
         Linear luminance (BT.601) of the rectified view (:meth:`_Renderer.rectified`).
     """
-    from ltmstore.dims import LUMA, VIEW_DIMS
-
     if tuple(lattice.dims) != (*LIGHT_DIMS, *VIEW_DIMS):
         raise LtmError(f"render_ltm_6d needs an (r, s, p, q) lattice, got dims {lattice.dims}")
     r, s, p, q = (lattice.centres(i) for i in range(4))

@@ -27,9 +27,8 @@ interrupted run never looks like a complete acquisition folder.
 from __future__ import annotations
 
 import os
-import shutil
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +79,7 @@ VIDEO_MARGIN = 0.1  # s: the video starts this long after the hand and stops thi
 TRACKER_NOISE = 0.0003  # m: standard deviation of the tracker noise (the paper: 0.31 mm RMS)
 TRACKER_SKEW = 0.1  # s: the tracker record starts/stops up to this much before/after the video
 OUTPUTS = ("acquisition.json", "poses.csv", "video.mkv", "video.mp4", "truth.zarr")
+TRUTH_UNITS = {"units": "linear frame value (rendered radiance x exposure, before sRGB)"}
 # 6D: camera B scribbles over a 20 cm square 45 cm above the object, looking at its centre.
 VIEW_PLANE = Plane(r=(-0.1, 0.1), s=(-0.1, 0.1), height=0.45)
 DEFAULT_LATTICE_6D = (12, 12, 6, 6)
@@ -135,6 +135,10 @@ class SimulationPlan:
         """True camera positions ``(frame_count, 2)`` at the frame times (6D plans)."""
         return np.column_stack(self.trajectory.at(self.frame_times)[3:5])
 
+    def view_plane_json(self) -> dict:
+        """``view_plane`` of ``acquisition.json`` (6D plans): the ``p, q`` ranges and the rig."""
+        return {"p": list(self.view_plane.r), "q": list(self.view_plane.s), **self.rig.to_json()}
+
     def sampling_ratio(self) -> float:
         """``K / M`` of the frames on the truth lattice (4-D for a 6D plan)."""
         lights = self.frame_lights()[:, :2].T
@@ -152,9 +156,10 @@ def plan_simulation(*, scene: str | Scene = "canvas", path_density: float = DEFA
     """Plan a simulated acquisition (cheap: no rendering). See :func:`simulate_acquisition`."""
     density = check_path_density(path_density)
     the_scene = scene if isinstance(scene, Scene) else make_scene(scene, size=size, seed=seed)
-    grid = _lattice(plane, delta_rs, lattice, view_plane if view else None)
-    path = scribble(plane, path_density=density, seed=seed, speed=speed,
-                    view=view_plane if view else None, view_speed=view_speed)
+    views = view_plane if view else None
+    grid = _lattice(plane, delta_rs, lattice, views)
+    path = scribble(plane, path_density=density, seed=seed, speed=speed, view=views,
+                    view_speed=view_speed)
     video_start = min(VIDEO_MARGIN, path.duration / 4)
     frame_count = int((path.duration - 2 * video_start) * writer.FPS) + 1
     skew = np.random.default_rng([seed, 404]).uniform(-TRACKER_SKEW, TRACKER_SKEW, 2)
@@ -163,8 +168,7 @@ def plan_simulation(*, scene: str | Scene = "canvas", path_density: float = DEFA
                     stop=video_stop + skew[1])
     return SimulationPlan(scene=the_scene, plane=plane, lattice=grid, trajectory=path,
                           tracker=tracker, video_start=video_start, frame_count=frame_count,
-                          seed=seed, path_density=density,
-                          view_plane=view_plane if view else None,
+                          seed=seed, path_density=density, view_plane=views,
                           rig=view_rig(the_scene, view_plane) if view else None)
 
 
@@ -255,7 +259,7 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str | Scene = "canvas
     plan = plan_simulation(scene=scene, path_density=path_density, seed=seed, size=size,
                            delta_rs=delta_rs, lattice=lattice, plane=plane, view=view,
                            view_plane=view_plane, view_speed=view_speed, speed=speed)
-    folder = _prepare_folder(Path(out), overwrite=overwrite)
+    folder = writer.prepare_folder(Path(out), OUTPUTS, overwrite=overwrite)
     try:
         return _execute(plan, folder, lossy=lossy, truth=truth, progress=progress)
     except OSError as exc:
@@ -265,70 +269,55 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str | Scene = "canvas
 
 def _execute(plan: SimulationPlan, folder: Path, *, lossy: bool, truth: bool,
              progress: bool) -> dict:
-    if plan.view_plane is not None:
-        return _execute_6d(plan, folder, lossy=lossy, truth=truth, progress=progress)
-    km = sampling_ratio(*plan.frame_lights()[:, :2].T, plan.lattice)
-    if truth:
-        ltm = render_ltm(plan.scene, plan.lattice, plan.plane.height, progress=progress)
-        exposure = EXPOSURE_PEAK / float(ltm.max())
-        ltm *= np.float32(exposure)
-        write_truth(folder / "truth.zarr", plan, ltm, exposure=exposure, sampling_ratio=km)
-        del ltm
-    else:
-        coarse = Lattice.from_plane(plan.plane, [max(1, n // 4) for n in plan.lattice.shape])
-        exposure = EXPOSURE_PEAK / float(render_ltm(plan.scene, coarse, plan.plane.height).max())
-    video = folder / writer.video_name(lossy)
-    frames = tqdm(video_frames(plan, exposure=exposure), total=plan.frame_count,
-                  disable=not progress, desc="video", unit="frame")
-    n = writer.write_video(video, frames, fps=writer.FPS)
-    tk = plan.tracker
-    writer.write_poses(folder / "poses.csv", tk.t - plan.video_start, tk.r, tk.s, tk.z)
-    info = _simulation_info(plan, exposure, km)
-    writer.write_acquisition_json(folder, video=video.name, plane=plan.plane, transfer="srgb",
-                                  extra={"simulation": info})
-    paths = {"folder": folder, "acquisition": folder / "acquisition.json", "video": video,
-             "poses": folder / "poses.csv"}
-    if truth:
-        paths["truth"] = folder / "truth.zarr"
-    return {**info, "frames": n, "duration_s": n / writer.FPS,
-            "paths": {k: str(v) for k, v in paths.items()}}
-
-
-def _execute_6d(plan: SimulationPlan, folder: Path, *, lossy: bool, truth: bool,
-                progress: bool) -> dict:
     km = plan.sampling_ratio()
-    distance = plan.view_plane.height
     if truth:
-        ltm = render_ltm_6d(plan.scene, plan.lattice, plan.plane.height, distance=distance,
-                            progress=progress)
+        ltm = _render_truth(plan, plan.lattice, progress=progress)
         exposure = EXPOSURE_PEAK / float(ltm.max())
         ltm *= np.float32(exposure)
-        write_truth_6d(folder / "truth.zarr", plan, ltm, exposure=exposure, sampling_ratio=km)
+        write = write_truth if plan.view_plane is None else write_truth_6d
+        write(folder / "truth.zarr", plan, ltm, exposure=exposure, sampling_ratio=km)
         del ltm
     else:
-        coarse = Lattice(bounds=plan.lattice.bounds, dims=plan.lattice.dims,
-                         shape=tuple(max(1, n // 4) for n in plan.lattice.shape))
-        exposure = EXPOSURE_PEAK / float(render_ltm_6d(plan.scene, coarse, plan.plane.height,
-                                                       distance=distance).max())
+        coarse = replace(plan.lattice, shape=tuple(max(1, n // 4) for n in plan.lattice.shape))
+        exposure = EXPOSURE_PEAK / float(_render_truth(plan, coarse).max())
     video = folder / writer.video_name(lossy)
-    frames = tqdm(video_frames_6d(plan, exposure=exposure), total=plan.frame_count,
+    make_frames = video_frames if plan.view_plane is None else video_frames_6d
+    frames = tqdm(make_frames(plan, exposure=exposure), total=plan.frame_count,
                   disable=not progress, desc="video", unit="frame")
     n = writer.write_video(video, frames, fps=writer.FPS)
     tk = plan.tracker
     writer.write_poses(folder / "poses.csv", tk.t - plan.video_start, tk.r, tk.s, tk.z, tk.p,
                        tk.q)
-    info = {**_simulation_info(plan, exposure, km), "view_lattice": list(plan.lattice.shape[2:]),
-            "view_speed_note": "camera B scribbles over view_plane, looking at the object centre"}
-    view_plane = {"p": list(plan.view_plane.r), "q": list(plan.view_plane.s),
-                  **plan.rig.to_json()}
+    info = _simulation_info(plan, exposure, km)
+    extra = {"simulation": info}
+    if plan.view_plane is not None:
+        info.update(view_lattice=list(plan.lattice.shape[2:]),
+                    view_speed_note="camera B scribbles over view_plane, looking at the "
+                                    "object centre")
+        extra = {"view_plane": plan.view_plane_json(), **extra}
     writer.write_acquisition_json(folder, video=video.name, plane=plan.plane, transfer="srgb",
-                                  extra={"view_plane": view_plane, "simulation": info})
+                                  extra=extra)
     paths = {"folder": folder, "acquisition": folder / "acquisition.json", "video": video,
              "poses": folder / "poses.csv"}
     if truth:
         paths["truth"] = folder / "truth.zarr"
     return {**info, "frames": n, "duration_s": n / writer.FPS,
             "paths": {k: str(v) for k, v in paths.items()}}
+
+
+def _render_truth(plan: SimulationPlan, lattice: Lattice, *, progress: bool = False) -> np.ndarray:
+    """The plan's ground-truth LTM on ``lattice``: RGB ``(y, x, r, s, color)``, or 6D luminance
+    ``(y, x, r, s, p, q)``."""
+    if plan.view_plane is None:
+        return render_ltm(plan.scene, lattice, plan.plane.height, progress=progress)
+    return render_ltm_6d(plan.scene, lattice, plan.plane.height,
+                         distance=plan.view_plane.height, progress=progress)
+
+
+def _sensor(linear: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Read and shot noise on a linear frame (float64), then sRGB uint8."""
+    sigma = np.sqrt(READ_NOISE**2 + SHOT_NOISE * np.clip(linear, 0.0, None))
+    return encode(linear + sigma * rng.standard_normal(linear.shape), "srgb")
 
 
 def video_frames_6d(plan: SimulationPlan, *, exposure: float) -> Iterator[np.ndarray]:
@@ -341,34 +330,34 @@ def video_frames_6d(plan: SimulationPlan, *, exposure: float) -> Iterator[np.nda
     for light, (p, q) in zip(plan.frame_lights(), plan.frame_views(), strict=True):
         renderer.set_camera(PinholeCamera(p, q, rig.distance, rig.intrinsics.fx))
         rectified = renderer.rectified(light) * np.float32(exposure)
-        linear = render_camera_frame(rectified, rig, p, q).astype(np.float64)
-        sigma = np.sqrt(READ_NOISE**2 + SHOT_NOISE * np.clip(linear, 0.0, None))
-        noisy = linear + sigma * rng.standard_normal(linear.shape)
-        yield encode(noisy, "srgb")
+        yield _sensor(render_camera_frame(rectified, rig, p, q).astype(np.float64), rng)
 
 
 def write_truth_6d(path: Path, plan: SimulationPlan, ltm: np.ndarray, *, exposure: float,
                    sampling_ratio: float) -> None:
     """Write the 6D ground truth ``ltm (y, x, r, s, p, q)`` (luminance) atomically."""
     h, w = ltm.shape[:2]
-    dims = plan.lattice.dims
     with new_store(path, overwrite=True) as group:
         write_coord(group, Y, np.arange(h))
         write_coord(group, X, np.arange(w))
         for name, values in plan.lattice.coords().items():
             write_coord(group, name, values, units=plan.plane.unit)
-        units = {"units": "linear frame value (rendered radiance x exposure, before sRGB)"}
-        lum = create_variable(group, LTM, (Y, X, *dims), ltm.shape,
-                              chunks=(min(h, 16), min(w, 16), *plan.lattice.shape), attrs=units)
+        lum = create_variable(group, LTM, (Y, X, *plan.lattice.dims), ltm.shape,
+                              chunks=(min(h, 16), min(w, 16), *plan.lattice.shape),
+                              attrs=TRUTH_UNITS)
         lum[...] = ltm
-        info = {"plane": plan.plane.to_json(), "lattice": plan.lattice.to_json(),
-                "view_plane": {"p": list(plan.view_plane.r), "q": list(plan.view_plane.s),
-                               **plan.rig.to_json()},
-                "exposure": exposure, "scene": plan.scene.name, "seed": plan.seed,
-                "path_density": plan.trajectory.path_density(plan.plane),
-                "sampling_ratio": sampling_ratio}
-        group.attrs.update(info)
-        complete_stage(group, "truth", info)
+        _complete_truth(group, plan, exposure, sampling_ratio)
+
+
+def _complete_truth(group, plan: SimulationPlan, exposure: float, sampling_ratio: float) -> None:
+    """Record the truth's provenance in its store (attributes and the ``truth`` stage)."""
+    view = {} if plan.view_plane is None else {"view_plane": plan.view_plane_json()}
+    info = {"plane": plan.plane.to_json(), "lattice": plan.lattice.to_json(), **view,
+            "exposure": exposure, "scene": plan.scene.name, "seed": plan.seed,
+            "path_density": plan.trajectory.path_density(plan.plane),
+            "sampling_ratio": sampling_ratio}
+    group.attrs.update(info)
+    complete_stage(group, "truth", info)
 
 
 def _simulation_info(plan: SimulationPlan, exposure: float, km: float) -> dict:
@@ -383,30 +372,6 @@ def _simulation_info(plan: SimulationPlan, exposure: float, km: float) -> dict:
     }
 
 
-def _prepare_folder(folder: Path, *, overwrite: bool) -> Path:
-    """Create ``folder`` or check that it may be written; with ``overwrite`` clear old outputs."""
-    if folder.exists() and not folder.is_dir():
-        raise LtmError(f"output {str(folder)!r} exists and is not a folder")
-    if folder.is_dir() and any(folder.iterdir()):
-        if not overwrite:
-            raise LtmError(f"output folder {str(folder)!r} is not empty; pass --overwrite to "
-                           "replace an earlier simulation there")
-        for name in OUTPUTS:
-            target = folder / name
-            if target.is_dir():
-                shutil.rmtree(target)
-            elif target.exists():
-                target.unlink()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise LtmError(f"cannot create output folder {str(folder)!r}: {exc.strerror or exc}") \
-            from exc
-    if not os.access(folder, os.W_OK):
-        raise LtmError(f"output folder {str(folder)!r} is not writable")
-    return folder
-
-
 def video_frames(plan: SimulationPlan, *, exposure: float) -> Iterator[np.ndarray]:
     """The video's frames, ``(H, W, 3)`` sRGB uint8, rendered at the true light positions.
 
@@ -414,10 +379,7 @@ def video_frames(plan: SimulationPlan, *, exposure: float) -> Iterator[np.ndarra
     """
     rng = np.random.default_rng([plan.seed, 303])
     for frame in iter_frames(plan.scene, plan.frame_lights()):
-        linear = frame.astype(np.float64) * exposure
-        sigma = np.sqrt(READ_NOISE**2 + SHOT_NOISE * np.clip(linear, 0.0, None))
-        noisy = linear + sigma * rng.standard_normal(linear.shape)
-        yield encode(noisy, "srgb")
+        yield _sensor(frame.astype(np.float64) * exposure, rng)
 
 
 def write_truth(path: Path, plan: SimulationPlan, truth_rgb: np.ndarray, *, exposure: float,
@@ -430,16 +392,10 @@ def write_truth(path: Path, plan: SimulationPlan, truth_rgb: np.ndarray, *, expo
         write_coord(group, R, plan.lattice.centres(0), units=plan.plane.unit)
         write_coord(group, S, plan.lattice.centres(1), units=plan.plane.unit)
         write_coord(group, COLOR, np.array(COLOR_CHANNELS, dtype=np.dtypes.StringDType()))
-        units = {"units": "linear frame value (rendered radiance x exposure, before sRGB)"}
         lum = create_variable(group, LTM, (Y, X, R, S), (h, w, nr, ns),
-                              chunks=(min(h, 64), min(w, 64), nr, ns), attrs=units)
+                              chunks=(min(h, 64), min(w, 64), nr, ns), attrs=TRUTH_UNITS)
         lum[...] = truth_rgb @ LUMA.astype(np.float32)
         rgb = create_variable(group, LTM_RGB, (Y, X, R, S, COLOR), truth_rgb.shape,
-                              chunks=(min(h, 32), min(w, 32), nr, ns, 3), attrs=units)
+                              chunks=(min(h, 32), min(w, 32), nr, ns, 3), attrs=TRUTH_UNITS)
         rgb[...] = truth_rgb
-        info = {"plane": plan.plane.to_json(), "lattice": plan.lattice.to_json(),
-                "exposure": exposure, "scene": plan.scene.name, "seed": plan.seed,
-                "path_density": plan.trajectory.path_density(plan.plane),
-                "sampling_ratio": sampling_ratio}
-        group.attrs.update(info)
-        complete_stage(group, "truth", info)
+        _complete_truth(group, plan, exposure, sampling_ratio)

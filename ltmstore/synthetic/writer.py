@@ -3,17 +3,44 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from collections.abc import Iterable
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from ltmstore.acquisition import FORMAT
 from ltmstore.dims import Plane
 from ltmstore.errors import LtmError
 
-FORMAT = "ltm-acquisition/1"
 FPS = 30.0
+
+
+def prepare_folder(folder: Path, outputs: Iterable[str], *, overwrite: bool) -> Path:
+    """Create ``folder`` or check that it may be written; with ``overwrite`` remove ``outputs``
+    (the names an earlier simulation wrote there)."""
+    if folder.exists() and not folder.is_dir():
+        raise LtmError(f"output {str(folder)!r} exists and is not a folder")
+    if folder.is_dir() and any(folder.iterdir()):
+        if not overwrite:
+            raise LtmError(f"output folder {str(folder)!r} is not empty; pass --overwrite to "
+                           "replace an earlier simulation there")
+        for name in outputs:
+            target = folder / name
+            if target.is_dir():
+                shutil.rmtree(target)
+            elif target.exists():
+                target.unlink()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise LtmError(f"cannot create output folder {str(folder)!r}: {exc.strerror or exc}") \
+            from exc
+    if not os.access(folder, os.W_OK):
+        raise LtmError(f"output folder {str(folder)!r} is not writable")
+    return folder
 
 
 def video_name(lossy: bool) -> str:
