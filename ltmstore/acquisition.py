@@ -60,6 +60,11 @@ class Acquisition:
     view_plane: dict | None = None
     raw: dict = field(default_factory=dict, compare=False, repr=False)
 
+    def sha256(self) -> dict[str, str]:
+        """Hex SHA-256 of the video and the poses file (raises :class:`OSError` on a read
+        error, which may be transient)."""
+        return {"video": sha256_file(self.video), "poses": sha256_file(self.poses)}
+
 
 @dataclass(frozen=True)
 class Poses:
@@ -142,6 +147,22 @@ def sha256_file(path: Path, *, block: int = 1 << 20) -> str:
         while chunk := fh.read(block):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, *, what: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file beside it, moved into place: readers
+    see the old file or the new one, never part of one, and a failure leaves no stray file.
+
+    Raises :class:`LtmError` naming ``what`` (for example ``"poses"``) on a write error.
+    """
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise LtmError(f"cannot write {what} {str(path)!r}: {exc.strerror or exc}") from None
 
 
 def load_acquisition(folder: str | os.PathLike) -> Acquisition:

@@ -25,7 +25,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ltmstore.acquisition import load_acquisition, sha256_file
+from ltmstore.acquisition import load_acquisition
 from ltmstore.errors import LtmError
 from ltmstore.provenance import software
 
@@ -179,8 +179,7 @@ def find_acquisitions(root: str | os.PathLike) -> list[tuple[str, Path, str]]:
 
 def input_hashes(folder: Path) -> dict:
     """sha256 of the acquisition's video and poses (validated through its acquisition.json)."""
-    acq = load_acquisition(folder)
-    return {"video": sha256_file(acq.video), "poses": sha256_file(acq.poses)}
+    return load_acquisition(folder).sha256()
 
 
 def _store_state(store: Path, params: ArchiveParams, hashes: dict | None) -> tuple[str, str]:
@@ -291,7 +290,7 @@ def reprocess(folder: str | os.PathLike, store: str | os.PathLike, params: Archi
     hashes = input_hashes(folder)
     reuse = work.exists() and _ingest_reusable(work, hashes)
     if not reuse:
-        ingest(folder, work, overwrite=True, progress=progress)
+        ingest(folder, work, overwrite=True, progress=progress, hashes=hashes)
     info = reconstruct(work, scheduler=scheduler, overwrite=True, progress=progress,
                        **params.options())
     _swap(work, store)

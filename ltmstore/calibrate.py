@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ltmstore.acquisition import write_text_atomic
 from ltmstore.board import BoardDetector, BoardSpec, read_spec_json, video_frames
 from ltmstore.errors import LtmError
 
@@ -51,14 +52,8 @@ class Intrinsics:
 
     def write(self, path: str | os.PathLike, extra: dict | None = None) -> None:
         """Write the JSON file (atomically)."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        try:
-            tmp.write_text(json.dumps({**self.to_json(), **(extra or {})}, indent=2) + "\n")
-            os.replace(tmp, path)
-        except OSError as exc:
-            raise LtmError(f"cannot write intrinsics {str(path)!r}: {exc.strerror or exc}") \
-                from None
+        write_text_atomic(path, json.dumps({**self.to_json(), **(extra or {})}, indent=2) + "\n",
+                          what="intrinsics")
 
 
 def load_intrinsics(path: str | os.PathLike) -> Intrinsics:

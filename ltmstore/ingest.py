@@ -39,7 +39,7 @@ import numpy as np
 import zarr
 from tqdm.auto import tqdm
 
-from ltmstore.acquisition import Acquisition, Poses, load_acquisition, load_poses, sha256_file
+from ltmstore.acquisition import Acquisition, Poses, load_acquisition, load_poses
 from ltmstore.dims import (
     CHANNEL,
     CHROMA,
@@ -402,7 +402,7 @@ class VideoReader:
 
 def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: bool = False,
            z_tolerance: float | None = None, progress: bool = True,
-           chunk_frames: int = DEFAULT_CHUNK_FRAMES) -> dict:
+           chunk_frames: int = DEFAULT_CHUNK_FRAMES, hashes: dict[str, str] | None = None) -> dict:
     """Decode an acquisition folder's video and poses into a new store.
 
     Parameters
@@ -420,6 +420,9 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         Show a progress bar.
     chunk_frames : int, default 32
         Frames per chunk along ``t``, and frames held in memory at once.
+    hashes : dict, optional
+        ``Acquisition.sha256()`` of the inputs when the caller has just computed it (the
+        archive does, to judge staleness); otherwise the inputs are hashed here.
 
     Returns
     -------
@@ -445,11 +448,11 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     rig = _rig(acq)
     light = partial(lights_at, poses=poses, plane=acq.plane, z_tolerance=z_tolerance,
                     time_offset=acq.time_offset, view_plane=acq.view_plane)
+    hashes = hashes or _sha256(acq)
+    hashed = time.perf_counter()
     with VideoReader(acq.video) as video, new_store(store, overwrite=overwrite) as group:
         begin_stage(group, STAGE)
         sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames, rig=rig)
-        hashes = {"video": sha256_file(acq.video), "poses": sha256_file(acq.poses)}
-        hashed = time.perf_counter()
         bar = tqdm(video, total=video.frame_count, disable=not progress, unit="frame",
                    desc="ingest")
         for i, rgb in enumerate(bar):
@@ -473,6 +476,14 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         record = finish_ingest(group, sink, t, light(t), acquisition=provenance, info=info,
                                started=started)
     return {**record, "store": str(store)}
+
+
+def _sha256(acq: Acquisition) -> dict[str, str]:
+    try:
+        return acq.sha256()
+    except OSError as exc:
+        raise LtmError(f"cannot read the inputs of {str(acq.folder)!r}: "
+                       f"{exc.strerror or exc}") from exc
 
 
 def _rig(acq: Acquisition) -> ViewRig | None:

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from ltmstore.acquisition import load_acquisition, load_poses
+from ltmstore.acquisition import load_acquisition, load_poses, write_text_atomic
 from ltmstore.errors import LtmError
 from ltmstore.ingest import VideoReader, transfer_lut
 
@@ -282,11 +282,8 @@ def sync_acquisition(acq_dir: str | os.PathLike, *, max_offset: float = DEFAULT_
 
 def _replace_json(path: Path, meta: dict) -> None:
     """Keep the old file as ``.bak`` and replace it atomically."""
-    tmp = path.with_name(path.name + ".tmp")
     try:
         shutil.copy2(path, path.with_name(path.name + ".bak"))
-        tmp.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise LtmError(f"cannot update {str(path)}: {exc.strerror or exc}") from None
+        raise LtmError(f"cannot back up {str(path)!r}: {exc.strerror or exc}") from None
+    write_text_atomic(path, json.dumps(meta, indent=2) + "\n", what="acquisition")

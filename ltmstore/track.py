@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ltmstore.acquisition import write_text_atomic
 from ltmstore.board import MIN_CORNERS, BoardDetector, BoardSpec, video_frames
 from ltmstore.calibrate import Intrinsics
 from ltmstore.errors import LtmError
@@ -174,15 +175,9 @@ def write_tracks(out: str | os.PathLike, results: list[FramePose]) -> dict:
     detail = "".join(f"{i},{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f},{r.corners},"
                      f"{r.reprojection_px:.4f},{r.tilt_deg:.3f},{r.status}\n"
                      for i, r in enumerate(results))
-    try:
-        for path, text in ((out, "t,r,s,z\n" + rows),
-                           (frames_csv, "frame,t,r,s,z,corners,reprojection_px,tilt_deg,status\n"
-                            + detail)):
-            tmp = path.with_name(path.name + ".tmp")
-            tmp.write_text(text)
-            os.replace(tmp, path)
-    except OSError as exc:
-        raise LtmError(f"cannot write poses {str(out)!r}: {exc.strerror or exc}") from None
+    write_text_atomic(out, "t,r,s,z\n" + rows, what="poses")
+    write_text_atomic(frames_csv, "frame,t,r,s,z,corners,reprojection_px,tilt_deg,status\n"
+                      + detail, what="per-frame tracking")
     return {"poses": str(out), "frames_csv": str(frames_csv)}
 
 
