@@ -34,10 +34,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 from scale_bench import PeakMemory  # noqa: E402
 
 from ltmstore import __version__  # noqa: E402
-from ltmstore.dims import LUMA, Lattice  # noqa: E402
-from ltmstore.ingest import ingest  # noqa: E402
-from ltmstore.reconstruct import reconstruct  # noqa: E402
-from ltmstore.store import CountingStore, open_group, open_store  # noqa: E402
+from ltmstore.core.dims import LUMA, Lattice  # noqa: E402
+from ltmstore.core.store import CountingStore, open_group, open_store  # noqa: E402
+from ltmstore.stages.ingest import ingest  # noqa: E402
+from ltmstore.stages.reconstruct import reconstruct  # noqa: E402
 from ltmstore.synthetic.render import PinholeCamera, _Renderer  # noqa: E402
 from ltmstore.synthetic.scenes import make_scene  # noqa: E402
 from ltmstore.synthetic.simulate import VIEW_PLANE, simulate_acquisition  # noqa: E402
@@ -92,7 +92,7 @@ def sampled_snr(store: Path, acq: Path, n_cells: int, seed: int = 0) -> dict:
 
 def query_cost(store: Path, light, view) -> dict:
     """Bytes and reads of one (light, view) point query, against the whole ``ltm``."""
-    from ltmstore.relight import relight
+    from ltmstore.stages.relight import relight
 
     counting = CountingStore(__import__("zarr").storage.LocalStore(str(store), read_only=True))
     ds = open_store(counting)
@@ -183,7 +183,7 @@ def main() -> None:
         angle = np.linspace(0, 2 * np.pi, n, endpoint=False)
         lights = np.column_stack([0.15 * np.cos(angle), 0.15 * np.sin(angle)])
         views = np.column_stack([0.08 * np.cos(-2 * angle), 0.08 * np.sin(-2 * angle)])
-        from ltmstore.relight import write_gif
+        from ltmstore.stages.relight import write_gif
 
         gif = out / f"scale_6d{suffix}.gif"
         write_gif(store, gif, lights, views)

@@ -1,8 +1,9 @@
 """Leave-lights-out on real RTI captures: every method of ``METHODS`` on the same pixels.
 
 Run: ``python bench/heldout_rti.py [--data ../shared/data] [--out bench/results]``. Each capture
-in ``--data`` (a folder with a ``dirs.lp``) is ingested (:func:`ltmstore.rti.ingest_rti`) and
-reconstructed on the automatic lattice (K/M about 0.29), then :func:`ltmstore.heldout.heldout_store`
+in ``--data`` (a folder with a ``dirs.lp``) is ingested
+(:func:`ltmstore.stages.ingest_rti.ingest_rti`) and reconstructed on the automatic lattice (K/M
+about 0.29), then :func:`ltmstore.judge.heldout.heldout_store`
 hides a fifth of the observed cells (lights) five times over and scores each method's
 prediction of them on the same ``--pixels`` random pixels. Writes ``heldout_rti.json`` and
 prints a Markdown table of held-out SNR (dB). The captures are third-party data: they are read
@@ -18,10 +19,10 @@ import tempfile
 from pathlib import Path
 
 from ltmstore import __version__
-from ltmstore.heldout import heldout_store
-from ltmstore.reconstruct import reconstruct
-from ltmstore.rti import ingest_rti
+from ltmstore.judge.heldout import heldout_store
 from ltmstore.solve import METHODS
+from ltmstore.stages.ingest_rti import ingest_rti
+from ltmstore.stages.reconstruct import reconstruct
 
 
 def capture(lp: Path, folder: Path) -> Path:

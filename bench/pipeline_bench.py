@@ -22,12 +22,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 from zarr.storage import LocalStore  # noqa: E402
 
 from ltmstore import __version__, relight  # noqa: E402
-from ltmstore.benchmark import random_lights, relight_cost  # noqa: E402
-from ltmstore.evaluate import snr_db  # noqa: E402
-from ltmstore.ingest import ingest  # noqa: E402
-from ltmstore.reconstruct import reconstruct  # noqa: E402
+from ltmstore.core.store import CountingStore, open_store  # noqa: E402
+from ltmstore.judge.benchmark import random_lights, relight_cost  # noqa: E402
+from ltmstore.judge.evaluate import snr_db  # noqa: E402
 from ltmstore.solve import Geometry, get_method  # noqa: E402
-from ltmstore.store import CountingStore, open_store  # noqa: E402
+from ltmstore.stages.ingest import ingest  # noqa: E402
+from ltmstore.stages.reconstruct import reconstruct  # noqa: E402
 from ltmstore.synthetic.simulate import simulate_acquisition  # noqa: E402
 
 SCENES = ("canvas", "icon", "relief")

@@ -21,11 +21,11 @@ from pathlib import Path
 import psutil
 
 from ltmstore import __version__
-from ltmstore.benchmark import random_lights, relight_cost
-from ltmstore.dims import Plane
-from ltmstore.ingest import ingest
-from ltmstore.reconstruct import reconstruct
-from ltmstore.store import open_store
+from ltmstore.core.dims import Plane
+from ltmstore.core.store import open_store
+from ltmstore.judge.benchmark import random_lights, relight_cost
+from ltmstore.stages.ingest import ingest
+from ltmstore.stages.reconstruct import reconstruct
 from ltmstore.synthetic.simulate import simulate_acquisition
 
 CONFIGS = {

@@ -5,7 +5,7 @@ regimes of :mod:`ltmstore.synthetic.regimes` (16 x 16 pixels on a 16 x 16 lattic
 24 x 24 pixel simulated mp4v capture, ingested and binned), solves every pixel with every method
 and writes ``stability.json``: per (method, regime) the SNR against the truth over the whole
 batch (the paper's SNR_Y), the held-out SNR (5 folds, from the samples alone), the median
-expected error (:func:`ltmstore.confidence.expected_error`), the fraction of flagged pixels,
+expected error (:func:`ltmstore.solve.confidence.expected_error`), the fraction of flagged pixels,
 how far the estimate leaves the observed range, and the solve time. Prints a Markdown table.
 """
 
@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from ltmstore import __version__
-from ltmstore.confidence import coverage, expected_error, flag_unsupported
-from ltmstore.evaluate import snr_db
-from ltmstore.heldout import heldout_error
+from ltmstore.judge.evaluate import snr_db
 from ltmstore.solve import METHODS
+from ltmstore.solve.confidence import coverage, expected_error, flag_unsupported
+from ltmstore.solve.validate import heldout_error
 from ltmstore.synthetic.regimes import Regime, build_regimes, lossy_regime, overshoot
 
 

@@ -30,18 +30,18 @@ from pathlib import Path
 import numpy as np
 
 from ltmstore import __version__
-from ltmstore.acquisition import Poses, load_poses
-from ltmstore.board import load_board
-from ltmstore.calibrate import calibrate_video, load_intrinsics
-from ltmstore.evaluate import compare_stores
-from ltmstore.ingest import ingest
-from ltmstore.reconstruct import reconstruct
-from ltmstore.sync import block_brightness, estimate_offset, sync_acquisition
+from ltmstore.capture.acquisition import Poses, load_poses
+from ltmstore.capture.board import load_board
+from ltmstore.capture.calibrate import calibrate_video, load_intrinsics
+from ltmstore.capture.sync import block_brightness, estimate_offset, sync_acquisition
+from ltmstore.capture.track import TrackConfig, track
+from ltmstore.judge.evaluate import compare_stores
+from ltmstore.stages.ingest import ingest
+from ltmstore.stages.reconstruct import reconstruct
 from ltmstore.synthetic import writer
 from ltmstore.synthetic.raw import simulate_raw
 from ltmstore.synthetic.render import render_frames
 from ltmstore.synthetic.simulate import plan_simulation, video_frames
-from ltmstore.track import TrackConfig, track
 
 SYNC_OFFSETS = (-0.48, -0.33, -0.21, 0.17, 0.29, 0.44)  # s
 

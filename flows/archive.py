@@ -25,8 +25,8 @@ from prefect.task_runners import ThreadPoolTaskRunner
 
 from flows.process import transient_io
 from ltmstore.archive import ArchiveParams, archive_status, record_runs, reprocess, summary_row
-from ltmstore.cluster import dask_client
-from ltmstore.errors import LtmError
+from ltmstore.core.cluster import dask_client
+from ltmstore.core.errors import LtmError
 
 ARTIFACT_KEY = "archive-summary"
 FLOW_NAME = "reprocess-archive"

@@ -6,7 +6,7 @@ import shutil
 import time
 from pathlib import Path
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 
 
 def run_demo(out, *, scene: str = "relief", size: int = 96, seed: int = 0,
@@ -17,8 +17,8 @@ def run_demo(out, *, scene: str = "relief", size: int = 96, seed: int = 0,
     under ``out``: ``acquisition/`` (with ``truth.zarr``), ``store.zarr``, ``previews/``.
     """
     from flows.process import process_acquisition
-    from ltmstore.evaluate import compare_stores
-    from ltmstore.store import open_store
+    from ltmstore.core.store import open_store
+    from ltmstore.judge.evaluate import compare_stores
     from ltmstore.synthetic.simulate import simulate_acquisition
 
     out = Path(out)

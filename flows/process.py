@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from prefect import flow, task
 
-from ltmstore.ingest import ingest
-from ltmstore.preview import render_previews
-from ltmstore.reconstruct import reconstruct
+from ltmstore.stages.ingest import ingest
+from ltmstore.stages.preview import render_previews
+from ltmstore.stages.reconstruct import reconstruct
 
 
 def transient_io(task, task_run, state) -> bool:
     """Retry only on operating-system I/O errors (a flaky share, a busy file), never on a user
-    mistake or a full disk (reported as :class:`~ltmstore.errors.LtmError`)."""
+    mistake or a full disk (reported as :class:`~ltmstore.core.errors.LtmError`)."""
     return isinstance(state.result(raise_on_failure=False), OSError)
 
 

@@ -25,9 +25,9 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ltmstore.acquisition import load_acquisition
-from ltmstore.errors import LtmError
-from ltmstore.provenance import software
+from ltmstore.capture.acquisition import load_acquisition
+from ltmstore.core.errors import LtmError
+from ltmstore.core.provenance import software
 
 STORE_SUFFIX = ".zarr"
 NEXT_SUFFIX = ".next"
@@ -60,13 +60,13 @@ class ArchiveParams:
     tile: int = 32
 
     def options(self) -> dict:
-        """Keyword arguments of :func:`ltmstore.reconstruct.reconstruct`."""
+        """Keyword arguments of :func:`ltmstore.stages.reconstruct.reconstruct`."""
         return {"lattice": self.lattice, "delta_rs": self.delta_rs, "method": self.method,
                 "auto": self.auto, "tile": self.tile}
 
     def key(self, color: bool) -> dict:
         """The run key a store made with these parameters records (see ``run_key``)."""
-        from ltmstore.reconstruct import run_key
+        from ltmstore.stages.reconstruct import run_key
 
         return run_key(params={}, color=color, **self.options())
 
@@ -184,7 +184,7 @@ def input_hashes(folder: Path) -> dict:
 
 def _store_state(store: Path, params: ArchiveParams, hashes: dict | None) -> tuple[str, str]:
     """``(status, reason)`` of an existing store against the current software and params."""
-    from ltmstore.provenance import store_summary
+    from ltmstore.core.store import store_summary
 
     try:
         prov = store_summary(store)
@@ -256,7 +256,7 @@ def archive_status(root: str | os.PathLike, params: ArchiveParams | None = None)
 
 
 def _fill_summary(entry: Entry) -> None:
-    from ltmstore.provenance import store_summary
+    from ltmstore.core.store import store_summary
 
     try:
         prov = store_summary(entry.store)
@@ -281,8 +281,8 @@ def reprocess(folder: str | os.PathLike, store: str | os.PathLike, params: Archi
         ``seconds``, ``sampling_ratio``, ``heldout_error``, ``tiles_solved``,
         ``tiles_resumed``, ``resumed_ingest``.
     """
-    from ltmstore.ingest import ingest
-    from ltmstore.reconstruct import reconstruct
+    from ltmstore.stages.ingest import ingest
+    from ltmstore.stages.reconstruct import reconstruct
 
     start = time.perf_counter()
     folder, store = Path(folder), Path(store)
@@ -301,7 +301,7 @@ def reprocess(folder: str | os.PathLike, store: str | os.PathLike, params: Archi
 
 
 def _ingest_reusable(work: Path, hashes: dict) -> bool:
-    from ltmstore.store import open_group, stages
+    from ltmstore.core.store import open_group, stages
 
     try:
         group = open_group(work)
@@ -316,7 +316,7 @@ def _ingest_reusable(work: Path, hashes: dict) -> bool:
 
 def _swap(work: Path, store: Path) -> None:
     """Move the complete side store into place; the old store is removed only afterwards."""
-    from ltmstore.store import swap_in
+    from ltmstore.core.store import swap_in
 
     try:
         swap_in(work, store)

@@ -16,8 +16,8 @@ import zarr
 from pipeline_helpers import BIN, free_port
 
 from ltmstore.archive import ArchiveParams
-from ltmstore.reconstruct import reconstruct, tiles_name
-from ltmstore.store import STAGE_VARIABLES, STAGES_ATTR
+from ltmstore.core.store import STAGE_VARIABLES, STAGES_ATTR
+from ltmstore.stages.reconstruct import reconstruct, tiles_name
 
 # A slow solver on a small lattice: 16 tiles of ~0.2-0.5 s each, so a kill lands mid-run.
 SLOW = {"lattice": (8, 8), "tile": 8, "method": "lars"}

@@ -27,7 +27,7 @@ def dask_cluster():
     """A real LocalCluster with 2 single-threaded worker processes, shared by the session."""
     from distributed import LocalCluster
 
-    from ltmstore.cluster import WORKER_ENV
+    from ltmstore.core.cluster import WORKER_ENV
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None, env=WORKER_ENV) as cluster:
@@ -62,8 +62,8 @@ def small_store(small_acquisition, tmp_path_factory, dask_cluster):
     """``small_acquisition`` ingested and reconstructed on the session's LocalCluster."""
     from distributed import Client
 
-    from ltmstore.ingest import ingest
-    from ltmstore.reconstruct import reconstruct
+    from ltmstore.stages.ingest import ingest
+    from ltmstore.stages.reconstruct import reconstruct
 
     store = tmp_path_factory.mktemp("store") / "store.zarr"
     ingest(small_acquisition, store, progress=False)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ltmstore.dims import Plane, rgb_to_ycbcr
+from ltmstore.core.dims import Plane, rgb_to_ycbcr
 from ltmstore.synthetic.writer import FPS, write_acquisition_json, write_poses, write_video
 
 H, W, N = 16, 20, 60

@@ -10,12 +10,12 @@ import xarray as xr
 import zarr
 from distributed import Client
 
-from ltmstore.errors import LtmError
-from ltmstore.evaluate import compare_stores
-from ltmstore.ingest import ingest
-from ltmstore.reconstruct import reconstruct
-from ltmstore.relight import relight, write_gif
-from ltmstore.store import CountingStore, open_store
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import CountingStore, open_store
+from ltmstore.judge.evaluate import compare_stores
+from ltmstore.stages.ingest import ingest
+from ltmstore.stages.reconstruct import reconstruct
+from ltmstore.stages.relight import relight, write_gif
 from ltmstore.synthetic.scenes import Scene, make_scene
 from ltmstore.synthetic.simulate import simulate_acquisition
 

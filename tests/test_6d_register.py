@@ -6,8 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ltmstore.errors import LtmError
-from ltmstore.register import (
+from ltmstore.capture.register import (
     Intrinsics,
     ObjectGrid,
     ViewRig,
@@ -15,6 +14,7 @@ from ltmstore.register import (
     rectify,
     render_camera_frame,
 )
+from ltmstore.core.errors import LtmError
 
 GRID = ObjectGrid((48, 64), 0.2 / 64)
 RIG = ViewRig(intrinsics=Intrinsics(fx=170.0, fy=172.0, cx=49.5, cy=41.0, width=100, height=84),
@@ -99,7 +99,7 @@ def test_rig_json_round_trip_and_errors():
 def test_ingest_rejects_a_partial_camera_and_a_wrong_frame_size(tmp_path):
     from ingest_helpers import H, W, make_acquisition
 
-    from ltmstore.ingest import ingest
+    from ltmstore.stages.ingest import ingest
 
     partial = {"p": [0.0, 0.1], "q": [-1.0, 1.0], "distance": 0.45}
     folder = make_acquisition(tmp_path / "a", view=True, extra={"view_plane": partial})

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import scipy.fft
 
-from ltmstore.dims import Lattice, Plane, parse_lattice
-from ltmstore.errors import LtmError
-from ltmstore.evaluate import snr_db
-from ltmstore.operators import SensingOperator, dot_test
-from ltmstore.reconstruct import plan_tiles
-from ltmstore.resample import bin_frames, bin_positions, lattice_6d
+from ltmstore.core.dims import Lattice, Plane, parse_lattice
+from ltmstore.core.errors import LtmError
+from ltmstore.core.operators import SensingOperator, dot_test
+from ltmstore.judge.evaluate import snr_db
 from ltmstore.solve import Geometry, get_method
+from ltmstore.stages.reconstruct import plan_tiles
+from ltmstore.stages.resample import bin_frames, bin_positions, lattice_6d
 
 LATTICE = Lattice(bounds=((-1, 1),) * 4, shape=(6, 6, 4, 4), dims=("r", "s", "p", "q"))
 
@@ -33,7 +33,7 @@ def sparse_ltfs(n: int, shape: tuple[int, ...], *, k: int, seed: int) -> np.ndar
 
 @pytest.mark.parametrize("block_bytes", [256 * 2**20, 2000])  # one time block, or a reduction
 def test_masked_binning_averages_each_pixels_finite_values(block_bytes, monkeypatch):
-    monkeypatch.setattr("ltmstore.resample.MASKED_BLOCK_BYTES", block_bytes)
+    monkeypatch.setattr("ltmstore.stages.resample.MASKED_BLOCK_BYTES", block_bytes)
     rng = np.random.default_rng(0)
     n, h, w = 300, 3, 4
     pos = [rng.uniform(-1, 1, n) for _ in range(4)]

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from ingest_helpers import PLANE, make_acquisition, pose_times, r_of
 
-from ltmstore.acquisition import load_acquisition, load_poses
-from ltmstore.errors import LtmError
+from ltmstore.capture.acquisition import load_acquisition, load_poses
+from ltmstore.core.errors import LtmError
 
 
 @pytest.fixture(scope="module")

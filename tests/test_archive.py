@@ -9,7 +9,7 @@ from archive_helpers import ARGS, PARAMS, build_archive, make_good_store, tree_d
 from pipeline_helpers import run_ltm
 
 from ltmstore.archive import STATE_FILE, ArchiveParams, archive_status
-from ltmstore.provenance import software
+from ltmstore.core.provenance import software
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +137,7 @@ def test_a_failed_reprocess_keeps_the_previous_good_store(archive):
     """b is stale; its video is now broken: reprocessing fails with one line, and b's previous
     store stays exactly as it was (the new one is built beside it and never swapped in)."""
     from ltmstore.archive import reprocess
-    from ltmstore.errors import LtmError
+    from ltmstore.core.errors import LtmError
 
     video = archive / "b" / "video.mkv"
     video.write_bytes(video.read_bytes()[:2000])

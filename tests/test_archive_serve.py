@@ -14,7 +14,7 @@ from pipeline_helpers import BIN
 
 from flows.archive import FLOW_NAME, _stop, prefect_server
 from ltmstore.archive import archive_status
-from ltmstore.provenance import store_summary
+from ltmstore.core.store import store_summary
 
 CRON = "0 2 * * *"
 DEPLOYMENT = "nightly"

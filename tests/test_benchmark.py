@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from ltmstore import benchmark
+from ltmstore.judge import benchmark
 
 
 def test_pareto_front_keeps_only_unbeaten_points():

@@ -9,7 +9,7 @@ import pytest
 from pipeline_helpers import run_ltm
 from test_cli import one_line_error
 
-from ltmstore.board import (
+from ltmstore.capture.board import (
     BoardDetector,
     BoardSpec,
     board_image,
@@ -19,7 +19,7 @@ from ltmstore.board import (
     parse_squares,
     write_board,
 )
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 
 
 def test_default_a4_board_fits_the_page():
@@ -111,7 +111,7 @@ def test_cli_board_and_its_errors(tmp_path):
 
 
 def test_calibrate_errors(tmp_path):
-    from ltmstore.calibrate import calibrate_video
+    from ltmstore.capture.calibrate import calibrate_video
     from ltmstore.synthetic.writer import write_video
 
     write_board(tmp_path / "b.png", board_spec("A4"), dpi=50)

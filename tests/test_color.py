@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from ltmstore import relight
-from ltmstore.ingest import ingest
-from ltmstore.reconstruct import reconstruct
-from ltmstore.store import open_store
+from ltmstore.core.store import open_store
+from ltmstore.stages.ingest import ingest
+from ltmstore.stages.reconstruct import reconstruct
 
 
 @pytest.fixture(scope="module")

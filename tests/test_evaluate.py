@@ -5,11 +5,12 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from ltmstore.confidence import coverage, coverage_gap, expected_error, flag_unsupported
-from ltmstore.errors import LtmError
-from ltmstore.evaluate import compare_stores, error_maps, psnr_db, snr_db
-from ltmstore.heldout import heldout_error, heldout_store, split_folds
+from ltmstore.core.errors import LtmError
+from ltmstore.judge.evaluate import compare_stores, error_maps, psnr_db, snr_db
+from ltmstore.judge.heldout import heldout_store
 from ltmstore.solve import Geometry
+from ltmstore.solve.confidence import coverage, coverage_gap, expected_error, flag_unsupported
+from ltmstore.solve.validate import heldout_error, split_folds
 
 LATTICE = (12, 12)
 GEOMETRY = Geometry.from_shape(LATTICE)
@@ -78,7 +79,7 @@ def test_compare_stores_reports_error_maps_and_writes_png(small_store, small_acq
                                                           tmp_path):
     from PIL import Image
 
-    from ltmstore.store import open_store
+    from ltmstore.core.store import open_store
 
     png = tmp_path / "maps.png"
     truth = small_acquisition / "truth.zarr"
@@ -163,7 +164,7 @@ def test_heldout_store_reads_a_pixel_subset(small_store):
 
 
 def test_heldout_store_needs_samples(small_acquisition, tmp_path):
-    from ltmstore.ingest import ingest
+    from ltmstore.stages.ingest import ingest
 
     store = tmp_path / "ingested.zarr"
     ingest(small_acquisition, store, progress=False)

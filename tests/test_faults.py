@@ -25,7 +25,7 @@ from archive_helpers import (
 )
 from pipeline_helpers import BIN
 
-from ltmstore.store import open_group, open_store, stages
+from ltmstore.core.store import open_group, open_store, stages
 
 
 def test_a_worker_killed_mid_run_the_run_completes_with_the_same_values(small_store, tmp_path,

@@ -24,12 +24,13 @@ from hypothesis import strategies as st
 from ingest_helpers import make_acquisition
 from pipeline_helpers import run_ltm
 
-from ltmstore.acquisition import TRANSFERS, load_acquisition, load_poses
 from ltmstore.archive import ArchiveParams, archive_status
-from ltmstore.errors import LtmError
-from ltmstore.ingest import ingest
-from ltmstore.rti import ingest_rti, read_lp
-from ltmstore.store import open_group, stages
+from ltmstore.capture.acquisition import TRANSFERS, load_acquisition, load_poses
+from ltmstore.capture.lp import read_lp
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_group, stages
+from ltmstore.stages.ingest import ingest
+from ltmstore.stages.ingest_rti import ingest_rti
 
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # the decoder's own complaints: noise
 HOSTILE_CASES: Counter = Counter()

@@ -26,18 +26,12 @@ from ingest_helpers import (
     tree_hashes,
 )
 
-from ltmstore.acquisition import Poses
-from ltmstore.errors import LtmError
-from ltmstore.ingest import (
-    MAX_POSE_GAP_S,
-    Z_TOLERANCE_FRACTION,
-    FrameSink,
-    chroma_decision,
-    ingest,
-    lights_at,
-    transfer_lut,
-)
-from ltmstore.store import open_group, open_store, stages
+from ltmstore.capture.acquisition import Poses
+from ltmstore.capture.video import transfer_lut
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_group, open_store, stages
+from ltmstore.stages.frames import MAX_POSE_GAP_S, FrameSink, chroma_decision, lights_at
+from ltmstore.stages.ingest import Z_TOLERANCE_FRACTION, ingest
 
 CHUNK = 16  # does not divide N: the last block is partial
 

@@ -13,9 +13,9 @@ from archive_helpers import ingest_only, tree_digest
 from pipeline_helpers import BIN, run_ltm
 
 from ltmstore import relight
-from ltmstore.errors import LtmError
-from ltmstore.reconstruct import reconstruct
-from ltmstore.store import open_group, open_store, revision_path, stages
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_group, open_store, revision_path, stages
+from ltmstore.stages.reconstruct import reconstruct
 
 
 @pytest.fixture

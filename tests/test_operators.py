@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from ltmstore.operators import SensingOperator, dot_test
+from ltmstore.core.operators import SensingOperator, dot_test
 
 
 @pytest.mark.parametrize("lattice", [(8, 8), (6, 10), (4, 5, 3, 3)])

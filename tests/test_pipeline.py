@@ -10,9 +10,9 @@ import pytest
 import xarray as xr
 from pipeline_helpers import dask_processes, run_ltm
 
-from ltmstore.evaluate import compare_stores, snr_db
+from ltmstore.core.store import open_store
+from ltmstore.judge.evaluate import compare_stores, snr_db
 from ltmstore.solve import Geometry, get_method
-from ltmstore.store import open_store
 
 # Measured on this acquisition (relief scene, 32 x 32 px, seed 1, 16 x 16 lattice, K/M 0.37): the
 # flow gives SNR_Y = 20.9 dB. Filling the unobserved cells with each pixel's mean scores 11.1 dB
@@ -108,7 +108,7 @@ def test_lars_and_cs_agree_on_the_simulated_scene(flow_run, small_acquisition):
 
 
 def test_plan_pads_shards_to_whole_inner_chunks():
-    from ltmstore.reconstruct import plan_tiles
+    from ltmstore.stages.reconstruct import plan_tiles
 
     plan = plan_tiles((100, 70), (50, 50), tile=32, chunk_bytes=32 * 32 * 4 * 16)
     assert plan.chunks == (32, 32, 4, 4) and plan.shards == (32, 32, 52, 52)

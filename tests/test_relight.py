@@ -8,11 +8,11 @@ import xarray as xr
 from zarr.storage import LocalStore
 
 from ltmstore import relight
-from ltmstore import store as st
-from ltmstore.dims import Lattice, Plane, rgb_to_ycbcr, ycbcr_to_rgb
-from ltmstore.errors import LtmError
-from ltmstore.reconstruct import plan_tiles
-from ltmstore.relight import LightClampWarning
+from ltmstore.core import store as st
+from ltmstore.core.dims import Lattice, Plane, rgb_to_ycbcr, ycbcr_to_rgb
+from ltmstore.core.errors import LtmError
+from ltmstore.stages.reconstruct import plan_tiles
+from ltmstore.stages.relight import LightClampWarning
 
 PLANE = Plane(r=(-1.0, 1.0), s=(-1.0, 1.0), height=1.0)
 LATTICE = Lattice.from_plane(PLANE, (16, 16))

@@ -3,8 +3,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ltmstore.dims import Lattice, Plane
-from ltmstore.resample import bin_frames, bin_positions, path_length
+from ltmstore.core.dims import Lattice, Plane
+from ltmstore.stages.resample import bin_frames, bin_positions, path_length
 
 PLANE = Plane(r=(0.0, 4.0), s=(0.0, 2.0), height=1.0)
 

@@ -19,8 +19,8 @@ from archive_helpers import (
 )
 from pipeline_helpers import run_ltm
 
-from ltmstore.reconstruct import reconstruct, tiles_name
-from ltmstore.store import open_group, open_store, revision_path, stages
+from ltmstore.core.store import open_group, open_store, revision_path, stages
+from ltmstore.stages.reconstruct import reconstruct, tiles_name
 
 OUTPUTS = ("ltm", "expected_error", "unsupported")
 

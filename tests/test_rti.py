@@ -10,9 +10,10 @@ import pytest
 import xarray as xr
 from ingest_helpers import encode, tree_hashes
 
-from ltmstore.errors import LtmError
-from ltmstore.rti import EXTENT_PER_HEIGHT, ingest_rti, read_lp
-from ltmstore.store import open_store
+from ltmstore.capture.lp import read_lp
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_store
+from ltmstore.stages.ingest_rti import EXTENT_PER_HEIGHT, ingest_rti
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 # images, height, width, lights outside the default plane

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from ltmstore.errors import LtmError
-from ltmstore.evaluate import snr_db
-from ltmstore.operators import SensingOperator
+from ltmstore.core.errors import LtmError
+from ltmstore.core.operators import SensingOperator
+from ltmstore.judge.evaluate import snr_db
 from ltmstore.solve import Geometry, cs, get_method, lars
 
 

@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ltmstore.confidence import expected_error, flag_unsupported
-from ltmstore.evaluate import snr_db
+from ltmstore.judge.evaluate import snr_db
 from ltmstore.solve import METHODS, cs
+from ltmstore.solve.confidence import expected_error, flag_unsupported
 from ltmstore.synthetic.regimes import REGIMES, build_regimes, lossy_regime, overshoot
 
 PIXELS = 64

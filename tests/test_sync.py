@@ -10,9 +10,9 @@ import pytest
 from pipeline_helpers import run_ltm
 from test_cli import one_line_error
 
-from ltmstore.acquisition import Poses, load_poses
-from ltmstore.errors import LtmError
-from ltmstore.sync import estimate_offset, sync_acquisition
+from ltmstore.capture.acquisition import Poses, load_poses
+from ltmstore.capture.sync import estimate_offset, sync_acquisition
+from ltmstore.core.errors import LtmError
 from ltmstore.synthetic.simulate import PLANE
 from ltmstore.synthetic.trajectory import scribble
 

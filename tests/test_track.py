@@ -5,10 +5,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ltmstore.acquisition import load_poses
-from ltmstore.board import BoardDetector, board_spec
-from ltmstore.calibrate import Intrinsics, load_intrinsics
-from ltmstore.errors import LtmError
+from ltmstore.capture.acquisition import load_poses
+from ltmstore.capture.board import BoardDetector, board_spec
+from ltmstore.capture.calibrate import Intrinsics, load_intrinsics
+from ltmstore.capture.track import (
+    FramePose,
+    TrackConfig,
+    _flag_out_of_plane,
+    estimate_pose,
+    led_position,
+    track_frame,
+    track_video,
+    write_tracks,
+)
+from ltmstore.core.errors import LtmError
 from ltmstore.synthetic.raw import (
     BOARD_PAPER,
     BOARD_SQUARE_MM,
@@ -18,16 +28,6 @@ from ltmstore.synthetic.raw import (
     _rot,
     camera_extrinsics,
     led_to_camera,
-)
-from ltmstore.track import (
-    FramePose,
-    TrackConfig,
-    _flag_out_of_plane,
-    estimate_pose,
-    led_position,
-    track_frame,
-    track_video,
-    write_tracks,
 )
 
 CAMERA = PhoneCamera(size=(640, 360), focal_px=500.0, led_offset=(0.012, -0.004, 0.002))

@@ -16,7 +16,7 @@ import pytest
 from pipeline_helpers import run_ltm
 from test_cli import one_line_error
 
-from ltmstore.acquisition import load_poses
+from ltmstore.capture.acquisition import load_poses
 
 SEED = 3
 OFFSET = -0.27  # s: phone A's clock starts 0.27 s before video B's
@@ -86,9 +86,9 @@ def test_sync_within_a_frame_and_backup_kept(tracked):
 def test_end_to_end_snr_close_to_true_poses(tracked, tmp_path, dask_cluster):
     from distributed import Client
 
-    from ltmstore.evaluate import compare_stores
-    from ltmstore.ingest import ingest
-    from ltmstore.reconstruct import reconstruct
+    from ltmstore.judge.evaluate import compare_stores
+    from ltmstore.stages.ingest import ingest
+    from ltmstore.stages.reconstruct import reconstruct
 
     acq, _, _, _ = tracked
     truth_acq = tmp_path / "true"
@@ -118,7 +118,7 @@ def test_end_to_end_snr_close_to_true_poses(tracked, tmp_path, dask_cluster):
     ("bad_led_offset", "must look like DX,DY,DZ"),
 ])
 def test_track_bad_input_one_line_errors(raw_capture, tmp_path, case, pattern):
-    from ltmstore.board import board_spec, write_board
+    from ltmstore.capture.board import board_spec, write_board
 
     acq, _ = raw_capture
     args = {"board": acq / "board.json", "intrinsics": acq / "truth" / "intrinsics.json",

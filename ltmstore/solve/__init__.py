@@ -4,6 +4,10 @@ Every method is ``solve(samples, geometry, **params) -> ndarray``: ``samples`` i
 binned LTFs of shape ``(n, *lattice)`` (one row per pixel of a tile) with NaN where a cell was not
 observed, ``geometry`` a :class:`Geometry` (the lattice and the plane height, for methods that
 need cell positions or light directions); the result is float32 of the same shape.
+
+Beside the methods: ``validate`` (held-out error on the cells, which methods use to choose their
+parameters), ``select`` (that choice per tile) and ``confidence`` (coverage and expected error
+maps). ``solve`` imports only :mod:`ltmstore.core`.
 """
 
 from __future__ import annotations
@@ -13,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ltmstore.dims import Lattice
-from ltmstore.errors import LtmError
+from ltmstore.core.dims import Lattice
+from ltmstore.core.errors import LtmError
 from ltmstore.solve import cs, cubic, hsh, kernel, lars, omp, ptm, rbf, svt
 
 

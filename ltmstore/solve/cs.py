@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ltmstore.operators import SensingOperator
+from ltmstore.core.operators import SensingOperator
 
 if TYPE_CHECKING:
     from ltmstore.solve import Geometry

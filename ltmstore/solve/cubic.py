@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 from ltmstore.solve.masks import nearest_fill, solve_by_mask
 
 if TYPE_CHECKING:

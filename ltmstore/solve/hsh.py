@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.special import lpmv
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 from ltmstore.solve.basis import fit_light_basis
 
 if TYPE_CHECKING:

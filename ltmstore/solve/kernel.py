@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 from ltmstore.solve.masks import solve_by_mask
 
 if TYPE_CHECKING:

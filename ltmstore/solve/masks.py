@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ltmstore.dims import Lattice
-from ltmstore.errors import LtmError
+from ltmstore.core.dims import Lattice
+from ltmstore.core.errors import LtmError
 
 if TYPE_CHECKING:
     from ltmstore.solve import Geometry

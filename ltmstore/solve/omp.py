@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ltmstore.errors import LtmError
-from ltmstore.operators import SensingOperator
+from ltmstore.core.errors import LtmError
+from ltmstore.core.operators import SensingOperator
 from ltmstore.solve.masks import solve_by_mask
 
 if TYPE_CHECKING:

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 from ltmstore.solve.masks import nearest_fill, per_view, solve_by_mask
 
 if TYPE_CHECKING:

@@ -3,8 +3,8 @@
 A method that can be tuned declares ``AUTO_GRID``, a mapping of one parameter to its candidate
 values (for ``cs`` the final threshold ``lam_min``: a larger one keeps fewer DCT coefficients, a
 sparser model). For each tile a small random subset of pixels is cross-validated (cells held out,
-predicted from the rest; :func:`ltmstore.heldout.heldout_error`) with every candidate, and the
-candidate with the lowest held-out error wins, unless it beats the method's default by less
+predicted from the rest; :func:`ltmstore.solve.validate.heldout_error`) with every candidate, and
+the candidate with the lowest held-out error wins, unless it beats the method's default by less
 than :data:`MARGIN` (a held-out estimate on a few dozen pixels is noisy by about that much; on
 the simulated scenes the held-out error always leans to the largest threshold by 1-2 %, while the
 truth prefers the default by up to 0.6 dB). The cost is a few solves of a few dozen pixels.
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ltmstore.heldout import heldout_error
 from ltmstore.solve import Geometry, get_method
+from ltmstore.solve.validate import heldout_error
 
 PIXELS = 48  # pixels of a tile that are cross-validated
 FOLDS = 2

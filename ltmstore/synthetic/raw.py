@@ -34,10 +34,10 @@ import numpy as np
 from scipy import ndimage
 from tqdm.auto import tqdm
 
-from ltmstore.board import BoardSpec, board_image, board_spec, page_image
-from ltmstore.calibrate import Intrinsics
-from ltmstore.dims import LUMA
-from ltmstore.errors import LtmError
+from ltmstore.capture.board import BoardSpec, board_image, board_spec, page_image
+from ltmstore.capture.calibrate import Intrinsics
+from ltmstore.core.dims import LUMA
+from ltmstore.core.errors import LtmError
 from ltmstore.synthetic import writer
 from ltmstore.synthetic.render import render_ltm
 from ltmstore.synthetic.simulate import (

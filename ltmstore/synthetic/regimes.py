@@ -30,9 +30,9 @@ from pathlib import Path
 import dask.array as da
 import numpy as np
 
-from ltmstore.dims import LUMA, Lattice, Plane
-from ltmstore.resample import bin_frames, bin_positions
+from ltmstore.core.dims import LUMA, Lattice, Plane
 from ltmstore.solve import Geometry
+from ltmstore.stages.resample import bin_frames, bin_positions
 from ltmstore.synthetic.render import render_ltm
 from ltmstore.synthetic.scenes import make_scene
 from ltmstore.synthetic.simulate import EXPOSURE_PEAK, PLANE
@@ -148,7 +148,7 @@ def make_regime(name: str, spec: RegimeSpec, truth: np.ndarray, lattice: Lattice
 
     Each frame takes the truth of the cell the light truly is in, goes through the regime's
     corruptions (noise, clipping, occlusion), and is binned at its *recorded* position (with the
-    tracker error) by :func:`ltmstore.resample.bin_frames`.
+    tracker error) by :func:`ltmstore.stages.resample.bin_frames`.
     """
     rng = np.random.default_rng([seed, 505])
     image = truth.shape[:2]
@@ -205,8 +205,8 @@ def lossy_regime(folder: str | os.PathLike, *, size: int = 24, lattice: tuple[in
     The relief scene is simulated into ``folder/acquisition``, ingested into
     ``folder/store.zarr``, and its valid frames binned onto the truth's lattice.
     """
-    from ltmstore.ingest import ingest
-    from ltmstore.store import open_store
+    from ltmstore.core.store import open_store
+    from ltmstore.stages.ingest import ingest
     from ltmstore.synthetic.simulate import simulate_acquisition
 
     folder = Path(folder)

@@ -9,7 +9,7 @@ separable Smith masking) and ``V`` the hard cast-shadow visibility found by ray-
 height field from ``P`` towards ``L`` in steps of half a pixel (bilinear heights), only while the
 ray is still below the highest point of the scene. Attached shadows come from ``n.l <= 0``.
 
-Geometry follows :mod:`ltmstore.dims`: object plane ``z = 0``, pixel centres
+Geometry follows :mod:`ltmstore.core.dims`: object plane ``z = 0``, pixel centres
 ``X = (x + 0.5 - W/2) pitch``, ``Y = (H/2 - y - 0.5) pitch``, a light ``(r, s, z)`` sits at
 ``(X, Y, Z) = (r, s, z)``. The camera is orthographic looking straight down unless a
 :class:`PinholeCamera` is given; the image always stays on the object-plane pixel grid (the
@@ -25,8 +25,8 @@ import numpy as np
 from scipy import ndimage
 from tqdm.auto import tqdm
 
-from ltmstore.dims import LIGHT_DIMS, LUMA, VIEW_DIMS, Lattice
-from ltmstore.errors import LtmError
+from ltmstore.core.dims import LIGHT_DIMS, LUMA, VIEW_DIMS, Lattice
+from ltmstore.core.errors import LtmError
 from ltmstore.synthetic.scenes import Scene
 
 MARCH_STEP_PX = 0.5  # shadow ray step, pixels (horizontal)

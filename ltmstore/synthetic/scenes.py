@@ -1,8 +1,8 @@
 """Ground-truth painting scenes: a height field plus a diffuse + GGX microfacet material.
 
 A :class:`Scene` is a square almost-planar object seen from above on the pixel grid of
-:mod:`ltmstore.dims` (row ``y`` down, column ``x`` right, object plane ``z = 0``). Three scenes are
-built in, each seeded and resolution independent (features are placed in object units):
+:mod:`ltmstore.core.dims` (row ``y`` down, column ``x`` right, object plane ``z = 0``). Three
+scenes are built in, each seeded and resolution independent (features are placed in object units):
 
 * ``canvas``: an oil painting, impasto brush strokes (0.2-1 mm), mild varnish gloss;
 * ``icon``: a tempera icon with a gilded border and halo (metallic gold, sharp coloured highlight);
@@ -19,8 +19,8 @@ from scipy import ndimage
 from skimage import data as skdata
 from skimage.transform import resize
 
-from ltmstore.errors import LtmError
-from ltmstore.transfer import srgb_to_linear
+from ltmstore.core.errors import LtmError
+from ltmstore.core.transfer import srgb_to_linear
 
 SCENES = ("canvas", "icon", "relief")
 OBJECT_WIDTH = 0.2  # metres: the default object is 20 cm wide

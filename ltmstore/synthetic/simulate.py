@@ -11,7 +11,7 @@ acquisition folder (ARCHITECTURE.md section 3.1) plus the ground truth ``truth.z
 
 A 6D simulation (``view=True``, ``ltm simulate --6d``) also moves camera B: it scribbles over a
 view plane parallel to the object (:data:`VIEW_PLANE`), looking at the object's centre through a
-pinhole (:class:`~ltmstore.register.ViewRig`, declared in ``acquisition.json`` under
+pinhole (:class:`~ltmstore.capture.register.ViewRig`, declared in ``acquisition.json`` under
 ``view_plane``). Each frame is the rectified view of :meth:`render.rectified` (raised features
 shift with the camera: parallax) projected into the camera's frame by the plane-induced
 homography; ``poses.csv`` gains the ``p, q`` columns and ``truth.zarr`` holds the 6D luminance
@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from ltmstore.dims import (
+from ltmstore.capture.register import Intrinsics, ObjectGrid, ViewRig, render_camera_frame
+from ltmstore.core.dims import (
     COLOR,
     COLOR_CHANNELS,
     LIGHT_DIMS,
@@ -49,9 +50,9 @@ from ltmstore.dims import (
     X,
     Y,
 )
-from ltmstore.errors import LtmError
-from ltmstore.register import Intrinsics, ObjectGrid, ViewRig, render_camera_frame
-from ltmstore.store import complete_stage, create_variable, new_store, write_coord
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import complete_stage, create_variable, new_store, write_coord
+from ltmstore.core.transfer import encode
 from ltmstore.synthetic import writer
 from ltmstore.synthetic.render import (
     PinholeCamera,
@@ -68,7 +69,6 @@ from ltmstore.synthetic.trajectory import (
     scribble,
     track,
 )
-from ltmstore.transfer import encode
 
 PLANE = Plane(r=(-0.2, 0.2), s=(-0.2, 0.2), height=0.3)  # a 40 cm square, 30 cm above
 DEFAULT_PATH_DENSITY = 27.0  # 1/m: K/M about 0.29 on a 32 x 32 lattice (the paper's ratio)

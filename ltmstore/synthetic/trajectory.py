@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from ltmstore.acquisition import Poses
-from ltmstore.dims import LIGHT_DIMS, Lattice, Plane
-from ltmstore.errors import LtmError
+from ltmstore.capture.acquisition import Poses
+from ltmstore.core.dims import LIGHT_DIMS, Lattice, Plane
+from ltmstore.core.errors import LtmError
 from ltmstore.synthetic.writer import FPS
 
 WALK_STEP = 1e-3  # metres of arc between samples of the generated walk
@@ -39,7 +39,7 @@ SAMPLE_HZ = 240.0  # dense time sampling of the true trajectory
 @dataclass(frozen=True, eq=False)
 class Trajectory(Poses):
     """Light positions over time (and, for 6D, camera positions on a view plane): the
-    :class:`~ltmstore.acquisition.Poses` record, with the geometry a simulation needs.
+    :class:`~ltmstore.capture.acquisition.Poses` record, with the geometry a simulation needs.
     """
 
     def __post_init__(self) -> None:

@@ -11,9 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ltmstore.acquisition import FORMAT
-from ltmstore.dims import Plane
-from ltmstore.errors import LtmError
+from ltmstore.capture.acquisition import FORMAT
+from ltmstore.core.dims import Plane
+from ltmstore.core.errors import LtmError
 
 FPS = 30.0
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from ltmstore.errors import LtmError
-from ltmstore.operators import SensingOperator
+from ltmstore.core.errors import LtmError
+from ltmstore.core.operators import SensingOperator
 from ltmstore.solve import METHODS, Geometry, get_method
 from ltmstore.solve.hsh import hsh_basis
 from ltmstore.solve.masks import group_by_mask, per_view

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ltmstore.dims import Lattice, Plane
-from ltmstore.errors import LtmError
+from ltmstore.core.dims import Lattice, Plane
+from ltmstore.core.errors import LtmError
 from ltmstore.synthetic.render import (
     PinholeCamera,
     is_occluded,

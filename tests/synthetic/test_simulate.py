@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from ltmstore.dims import LUMA, Plane
-from ltmstore.errors import LtmError
-from ltmstore.store import stages
+from ltmstore.core.dims import LUMA, Plane
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import stages
+from ltmstore.core.transfer import decode
 from ltmstore.synthetic.render import render_ltm
 from ltmstore.synthetic.simulate import (
     EXPOSURE_PEAK,
@@ -21,7 +22,6 @@ from ltmstore.synthetic.simulate import (
     video_frames,
 )
 from ltmstore.synthetic.trajectory import sampling_ratio
-from ltmstore.transfer import decode
 
 from .conftest import SIM_ARGS
 
@@ -82,7 +82,7 @@ def test_truth_store(simulation, simulation_plan):
 
 
 def _group(path):
-    from ltmstore.store import open_group
+    from ltmstore.core.store import open_group
 
     return open_group(path)
 

@@ -7,8 +7,8 @@ import re
 import numpy as np
 import pytest
 
-from ltmstore.dims import Lattice, Plane
-from ltmstore.errors import LtmError
+from ltmstore.core.dims import Lattice, Plane
+from ltmstore.core.errors import LtmError
 from ltmstore.synthetic.simulate import DEFAULT_PATH_DENSITY
 from ltmstore.synthetic.trajectory import (
     Trajectory,

@@ -1,8 +1,8 @@
 """Read and validate an acquisition folder (ARCHITECTURE.md section 3.1).
 
 Everything a user can get wrong in ``acquisition.json`` or ``poses.csv`` is reported as one
-:class:`~ltmstore.errors.LtmError` whose one-line message names the file, the bad value and what
-was expected. Input files are only ever read.
+:class:`~ltmstore.core.errors.LtmError` whose one-line message names the file, the bad value and
+what was expected. Input files are only ever read.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ltmstore.dims import Plane
-from ltmstore.errors import LtmError
+from ltmstore.core.dims import Plane
+from ltmstore.core.errors import LtmError
 
 FORMAT = "ltm-acquisition/1"
 TRANSFERS = ("srgb", "linear")

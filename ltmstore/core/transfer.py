@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 
 TRANSFERS = ("srgb", "linear")
 
@@ -38,3 +38,9 @@ def encode(linear: np.ndarray, transfer: str) -> np.ndarray:
     _check(transfer)
     v = linear_to_srgb(linear) if transfer == "srgb" else np.clip(linear, 0, 1)
     return np.round(np.asarray(v) * 255).astype(np.uint8)
+
+
+def encode_images(images: np.ndarray, transfer: str) -> np.ndarray:
+    """Linear RGB images ``(n, y, x, 3)`` to 8-bit, scaled so the brightest 0.5% clip."""
+    scale = max(float(np.percentile(images, 99.5)), 1e-12)
+    return encode(images / scale, transfer)

@@ -9,11 +9,9 @@ current software and the requested parameters.
 from __future__ import annotations
 
 import functools
-import os
 import subprocess
+from importlib import metadata
 from pathlib import Path
-
-from ltmstore.errors import LtmError
 
 STAGE_ORDER = ("ingest", "resample", "reconstruct")
 
@@ -21,7 +19,7 @@ STAGE_ORDER = ("ingest", "resample", "reconstruct")
 @functools.cache
 def commit() -> str | None:
     """The git commit of the source tree ltmstore runs from (``None`` when not a checkout)."""
-    source = Path(__file__).resolve().parent.parent
+    source = Path(__file__).resolve().parents[2]
     if not (source / ".git").exists():
         return None
     try:
@@ -36,11 +34,17 @@ def commit() -> str | None:
     return f"{sha}+dirty" if dirty.stdout.strip() else sha or None
 
 
+def version() -> str:
+    """The installed ltmstore's version (``0.0.0+unknown`` when running from a bare source tree)."""
+    try:
+        return metadata.version("ltmstore")
+    except metadata.PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "0.0.0+unknown"
+
+
 def software() -> dict:
     """``{"name", "version", "commit"}`` of the running ltmstore."""
-    from ltmstore import __version__
-
-    return {"name": "ltmstore", "version": __version__, "commit": commit()}
+    return {"name": "ltmstore", "version": version(), "commit": commit()}
 
 
 def summary(attrs: dict) -> dict:
@@ -87,14 +91,3 @@ def summary(attrs: dict) -> dict:
                           if k in e}
                    for name, e in stages.items()},
     }
-
-
-def store_summary(path: str | os.PathLike) -> dict:
-    """:func:`summary` of the store at ``path`` (a clear error when it is not a store)."""
-    from ltmstore.store import open_group
-
-    try:
-        attrs = open_group(path).attrs.asdict()
-    except (OSError, ValueError) as exc:
-        raise LtmError(f"store {str(path)!r} cannot be read: {exc}") from exc
-    return {"store": str(path), **summary(attrs)}

@@ -6,7 +6,7 @@
   paper's Fig. 7: ``||t - t_hat||_1 / M`` and the variance of ``|t - t_hat|``);
 * :func:`compare_stores`: all of the above for a reconstructed store against a truth store.
 
-For captures without a ground truth, see :mod:`ltmstore.heldout` (held-out-light error).
+For captures without a ground truth, see :mod:`ltmstore.judge.heldout` (held-out-light error).
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ import os
 import numpy as np
 import xarray as xr
 
-from ltmstore.dims import LTM, X, Y
-from ltmstore.errors import LtmError
-from ltmstore.store import open_store
+from ltmstore.core.dims import LTM, X, Y
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_store
 
 MEAN_ABS_ERROR, VAR_ABS_ERROR = "mean_abs_error", "var_abs_error"
 

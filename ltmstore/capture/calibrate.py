@@ -14,9 +14,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ltmstore.acquisition import write_text_atomic
-from ltmstore.board import BoardDetector, BoardSpec, read_spec_json, video_frames
-from ltmstore.errors import LtmError
+from ltmstore.capture.acquisition import write_text_atomic
+from ltmstore.capture.board import BoardDetector, BoardSpec, read_spec_json, video_frames
+from ltmstore.core.errors import LtmError
 
 FORMAT = "ltm-intrinsics/1"
 MIN_VIEWS = 4  # fewest board views for a calibration

@@ -18,7 +18,7 @@ import warnings
 import numpy as np
 import xarray as xr
 
-from ltmstore.dims import (
+from ltmstore.core.dims import (
     CHROMA,
     CHROMA_LTM,
     COLOR,
@@ -29,8 +29,9 @@ from ltmstore.dims import (
     Q,
     rgb_from_ycbcr,
 )
-from ltmstore.errors import LtmError
-from ltmstore.store import open_store
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_store
+from ltmstore.core.transfer import encode_images
 
 LIGHT = "light"
 
@@ -234,8 +235,6 @@ def write_gif(store, path: str | os.PathLike, lights, views=None, *, fps: float 
         The path written.
     """
     import imageio.v3 as iio
-
-    from ltmstore.preview import encode_images
 
     ds = _as_dataset(store)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")

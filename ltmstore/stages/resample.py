@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import dask.array as da
 import numpy as np
 
-from ltmstore.dims import Lattice, P, Plane, Q, R, S
-from ltmstore.errors import LtmError
+from ltmstore.core.dims import Lattice, P, Plane, Q, R, S
+from ltmstore.core.errors import LtmError
 
 
 @dataclass(frozen=True)

@@ -19,10 +19,9 @@ import zarr
 from distributed import Client, as_completed
 from tqdm.auto import tqdm
 
-from ltmstore import store as st
-from ltmstore.cluster import dask_client
-from ltmstore.confidence import expected_error, flag_unsupported
-from ltmstore.dims import (
+from ltmstore.core import store as st
+from ltmstore.core.cluster import dask_client
+from ltmstore.core.dims import (
     CHROMA_CHANNELS,
     CHROMA_LTM,
     CHROMA_SAMPLES,
@@ -35,8 +34,11 @@ from ltmstore.dims import (
     Lattice,
     Plane,
 )
-from ltmstore.errors import LtmError
-from ltmstore.resample import (
+from ltmstore.core.errors import LtmError
+from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
+from ltmstore.solve.confidence import expected_error, flag_unsupported
+from ltmstore.solve.select import Choice, choose_params
+from ltmstore.stages.resample import (
     Binning,
     bin_frames,
     bin_positions,
@@ -44,8 +46,6 @@ from ltmstore.resample import (
     path_length,
     view_positions,
 )
-from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
-from ltmstore.solve.select import Choice, choose_params
 
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
@@ -178,7 +178,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
 
     A store without a complete ``ltm`` is written in place (an interrupted run of the same
     parameters is resumed). Recomputing a complete one (``overwrite``) builds the new ``ltm`` on
-    a linked copy beside the store (:func:`ltmstore.store.revised_store`) and swaps it in only
+    a linked copy beside the store (:func:`ltmstore.core.store.revised_store`) and swaps it in only
     when complete: a failure leaves the previous ``ltm`` untouched, and a killed run is resumed
     by the next ``overwrite`` run of the same parameters.
 
@@ -188,7 +188,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         The store (after ``ltm ingest``).
     client : distributed.Client, optional
         The Dask cluster that runs the tiles; without it one is started for the run
-        (:func:`ltmstore.cluster.dask_client` with ``scheduler``) once the inputs are checked.
+        (:func:`ltmstore.core.cluster.dask_client` with ``scheduler``) once the inputs are checked.
     scheduler : str, optional
         Address of an existing Dask scheduler (used when no ``client`` is given).
     lattice, delta_rs : optional
@@ -258,7 +258,7 @@ def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -
 def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: bool,
             tile: int) -> dict:
     """Everything that shapes the ``ltm`` (with the software): equal keys, equal results."""
-    from ltmstore.provenance import software
+    from ltmstore.core.provenance import software
 
     soft = software()
     return json.loads(json.dumps({

@@ -32,9 +32,9 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from ltmstore.acquisition import load_acquisition, load_poses, write_text_atomic
-from ltmstore.errors import LtmError
-from ltmstore.ingest import VideoReader, transfer_lut
+from ltmstore.capture.acquisition import load_acquisition, load_poses, write_text_atomic
+from ltmstore.capture.video import VideoReader, transfer_lut
+from ltmstore.core.errors import LtmError
 
 GRID = 6  # blocks per image side
 DEGREE = 3  # polynomial degree in (r, s)

@@ -7,10 +7,10 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from ltmstore.dims import Plane
-from ltmstore.relight import relight
-from ltmstore.store import open_store
-from ltmstore.transfer import encode
+from ltmstore.core.dims import Plane
+from ltmstore.core.store import open_store
+from ltmstore.core.transfer import encode_images
+from ltmstore.stages.relight import relight
 
 
 def circle_path(plane: Plane, n: int, *, radius: float = 0.8) -> np.ndarray:
@@ -19,12 +19,6 @@ def circle_path(plane: Plane, n: int, *, radius: float = 0.8) -> np.ndarray:
     rc, sc = np.mean(plane.r), np.mean(plane.s)
     hr, hs = (plane.r[1] - plane.r[0]) / 2, (plane.s[1] - plane.s[0]) / 2
     return np.column_stack([rc + radius * hr * np.cos(angle), sc + radius * hs * np.sin(angle)])
-
-
-def encode_images(images: np.ndarray, transfer: str) -> np.ndarray:
-    """Linear RGB images ``(n, y, x, 3)`` to 8-bit, scaled so the brightest 0.5% clip."""
-    scale = max(float(np.percentile(images, 99.5)), 1e-12)
-    return encode(images / scale, transfer)
 
 
 def render_previews(store, out_dir, *, n_frames: int = 24, fps: float = 12) -> dict:

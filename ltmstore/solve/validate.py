@@ -13,24 +13,19 @@ path are nearly copies of each other.
 
 Held-out cells are scored against the binned samples, not a truth: noise in the samples counts
 as error, and cells far from every observation (large empty regions of the plane) are never
-scored, because nothing is observed there. :func:`ltmstore.confidence.flag_unsupported` reports
-those.
+scored, because nothing is observed there. :func:`ltmstore.solve.confidence.flag_unsupported`
+reports those.
 """
 
 from __future__ import annotations
 
-import os
-import time
 import warnings
 from dataclasses import dataclass
-from itertools import product
 
 import numpy as np
 
-from ltmstore.dims import SAMPLES, Lattice
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 from ltmstore.solve import Geometry, Method, get_method
-from ltmstore.store import open_store, stages
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,7 +59,7 @@ class HeldOut:
     shared_mask: bool
 
 
-def _check_split(folds: int, fraction: float | None, block: int) -> float:
+def check_split(folds: int, fraction: float | None, block: int) -> float:
     if int(folds) != folds or folds < 1:
         raise LtmError(f"folds {folds!r} must be a positive integer")
     if int(block) != block or block < 1:
@@ -111,7 +106,7 @@ def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, 
     ndarray of int16
         When all rows of ``mask`` are equal, all rows get the same assignment.
     """
-    fraction = _check_split(folds, fraction, block)
+    fraction = check_split(folds, fraction, block)
     mask = np.asarray(mask, dtype=bool)
     shared = bool((mask == mask[:1]).all())
     rows = mask[:1] if shared else mask
@@ -128,7 +123,7 @@ def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, 
     return np.broadcast_to(fold, mask.shape).copy() if shared else fold
 
 
-def _method(method: str | Method) -> Method:
+def as_method(method: str | Method) -> Method:
     return get_method(method) if isinstance(method, str) else method
 
 
@@ -157,7 +152,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
     -------
     HeldOut
     """
-    solve, params = _method(method), dict(params or {})
+    solve, params = as_method(method), dict(params or {})
     samples = np.asarray(samples)
     if samples.dtype.kind != "f":
         samples = samples.astype(np.float64)
@@ -195,86 +190,3 @@ def observed_range(samples: np.ndarray) -> np.ndarray:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows
         return np.nanmax(flat, axis=1) - np.nanmin(flat, axis=1)
-
-
-def store_geometry(ds) -> Geometry:
-    """The lattice and plane height of a resampled store (from its provenance)."""
-    entry = stages(ds).get("resample", {})
-    try:
-        lat = entry["lattice"]
-        lattice = Lattice(bounds=tuple(tuple(float(v) for v in b) for b in lat["bounds"]),
-                          shape=tuple(int(v) for v in lat["shape"]), dims=tuple(lat["dims"]))
-        height = float(ds.attrs["acquisition"]["plane"]["height"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise LtmError(f"store has no usable resample record ({exc}); run ltm reconstruct") \
-            from exc
-    return Geometry(lattice=lattice, height=height)
-
-
-def _pick_pixels(arr, max_pixels: int, rng: np.random.Generator) -> np.ndarray:
-    """Up to ``max_pixels`` random pixels ``(n, *lattice)``, read from random whole tiles only."""
-    import dask
-
-    tiles = list(product(*(range(len(c)) for c in arr.chunks[:2])))
-    picked, total = [], 0
-    for index in rng.permutation(len(tiles)):
-        i, j = tiles[index]
-        picked.append(arr.blocks[i, j])
-        total += arr.chunks[0][i] * arr.chunks[1][j]
-        if total >= max_pixels:
-            break
-    data = np.concatenate([b.reshape(-1, *arr.shape[2:]) for b in dask.compute(*picked)])
-    if len(data) > max_pixels:
-        data = data[np.sort(rng.choice(len(data), max_pixels, replace=False))]
-    return data
-
-
-def heldout_store(store: str | os.PathLike, *, method: str = "cs", folds: int = 5,
-                  max_pixels: int = 4096, seed: int = 0, params: dict | None = None,
-                  fraction: float | None = None, block: int = 1) -> dict:
-    """Held-out error of ``method`` on the binned samples of a resampled store.
-
-    Reads ``samples`` (written by ``ltm reconstruct``) from a random subset of whole pixel
-    tiles, up to ``max_pixels`` pixels, and runs :func:`heldout_error` on them.
-
-    Returns
-    -------
-    dict
-        ``method``, ``params``, ``folds``, ``fraction``, ``block``, ``pixels``, ``K`` (mean
-        observed cells per pixel), ``M``, ``relative_error``, ``heldout_snr_db``,
-        ``rms_median``, ``rms_p90``, ``relative_rms_median`` (RMS over the pixel's observed
-        range), ``cells_per_fold``, ``shared_mask``, ``seconds``.
-
-    Raises
-    ------
-    LtmError
-        The store has no complete ``samples``, or bad arguments.
-    """
-    if int(max_pixels) != max_pixels or max_pixels < 1:
-        raise LtmError(f"max_pixels {max_pixels!r} must be a positive integer")
-    _method(method)
-    ds = open_store(store)
-    if SAMPLES not in ds:
-        raise LtmError(f"store {str(store)!r} has no complete samples; run ltm reconstruct first")
-    geometry = store_geometry(ds)
-    start = time.perf_counter()
-    samples = _pick_pixels(ds[SAMPLES].data, int(max_pixels), np.random.default_rng([seed, 707]))
-    result = heldout_error(samples, geometry, method, folds=folds, seed=seed, params=params,
-                           fraction=fraction, block=block)
-    observed = np.isfinite(samples).reshape(len(samples), -1)
-    spread = observed_range(samples)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        relative = result.rms / np.where(spread > 0, spread, np.nan)
-    return {"method": method, "params": dict(params or {}), "folds": result.folds,
-            "fraction": _check_split(folds, fraction, block), "block": int(block),
-            "pixels": len(samples), "K": float(observed.sum(axis=1).mean()),
-            "M": int(observed.shape[1]), "relative_error": result.relative_error,
-            "heldout_snr_db": result.snr_db, "rms_median": _nan_stat(np.nanmedian, result.rms),
-            "rms_p90": _nan_stat(lambda v: np.nanpercentile(v, 90), result.rms),
-            "relative_rms_median": _nan_stat(np.nanmedian, relative),
-            "cells_per_fold": list(result.cells_per_fold), "shared_mask": result.shared_mask,
-            "seconds": time.perf_counter() - start}
-
-
-def _nan_stat(func, values: np.ndarray) -> float:
-    return float(func(values)) if np.isfinite(values).any() else float("nan")

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 
 T, Y, X = "t", "y", "x"
 R, S, P, Q = "r", "s", "p", "q"

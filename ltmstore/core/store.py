@@ -21,7 +21,8 @@ import zarr
 from zarr.abc.store import Store
 from zarr.storage import WrapperStore
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
+from ltmstore.core.provenance import software, summary
 
 STAGES_ATTR = "stages"
 # Which variables each stage writes (to hide the output of stages that did not complete).
@@ -234,8 +235,6 @@ def begin_stage(group: zarr.Group, stage: str, info: dict | None = None) -> None
 
 def complete_stage(group: zarr.Group, stage: str, info: dict) -> None:
     """Record ``info`` for ``stage`` and mark it complete: always the last write of a stage."""
-    from ltmstore.provenance import software
-
     soft = software()
     st = stages(group)
     entry = dict(st.get(stage, {}))
@@ -273,3 +272,12 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     ds = ds.drop_vars([v for v in incomplete if v in ds.variables])
     ds.attrs = dict(group.attrs.asdict())
     return ds
+
+
+def store_summary(path: str | os.PathLike) -> dict:
+    """:func:`summary` of the store at ``path`` (a clear error when it is not a store)."""
+    try:
+        attrs = open_group(path).attrs.asdict()
+    except (OSError, ValueError) as exc:
+        raise LtmError(f"store {str(path)!r} cannot be read: {exc}") from exc
+    return {"store": str(path), **summary(attrs)}

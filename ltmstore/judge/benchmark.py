@@ -25,14 +25,14 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from zarr.storage import LocalStore
 
-from ltmstore import __version__
-from ltmstore.dims import LUMA, Lattice
-from ltmstore.evaluate import snr_db
-from ltmstore.relight import relight
-from ltmstore.resample import bin_frames, bin_positions
+from ltmstore.core.dims import LUMA, Lattice
+from ltmstore.core.provenance import version
+from ltmstore.core.store import CountingStore, open_store
+from ltmstore.judge.evaluate import snr_db
 from ltmstore.solve import METHODS, Geometry, get_method
 from ltmstore.solve.select import choose_params
-from ltmstore.store import CountingStore, open_store
+from ltmstore.stages.relight import relight
+from ltmstore.stages.resample import bin_frames, bin_positions
 from ltmstore.synthetic.render import iter_frames, render_ltm
 from ltmstore.synthetic.simulate import EXPOSURE_PEAK, plan_simulation
 
@@ -270,7 +270,7 @@ def write(records: list[dict], out: Path, *, command: str) -> dict:
     """``bench.json`` (records, summary, machine) and the charts, under ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     paths = charts(records, out)
-    result = {"command": command, "ltmstore": __version__,
+    result = {"command": command, "ltmstore": version(),
               "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
               "summary": summarise(records), "records": records, "charts": paths}
     (out / "bench.json").write_text(json.dumps(result, indent=2) + "\n")

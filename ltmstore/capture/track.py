@@ -3,8 +3,8 @@
 Per frame: detect the ChArUco board, estimate the camera pose (IPPE on the matched corners,
 refined by Levenberg-Marquardt), check it (enough corners, RMS reprojection error, tilt of the
 optical axis from the board normal), place the LED at its offset from the camera and express it
-in plane coordinates (:meth:`~ltmstore.board.BoardSpec.to_plane`: ``r, s`` from the board centre,
-``z`` the height above the board). Times are the frame timestamps of the video.
+in plane coordinates (:meth:`~ltmstore.capture.board.BoardSpec.to_plane`: ``r, s`` from the board
+centre, ``z`` the height above the board). Times are the frame timestamps of the video.
 
 Outputs, so that ``ltm ingest`` takes them unchanged:
 
@@ -24,10 +24,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ltmstore.acquisition import write_text_atomic
-from ltmstore.board import MIN_CORNERS, BoardDetector, BoardSpec, video_frames
-from ltmstore.calibrate import Intrinsics
-from ltmstore.errors import LtmError
+from ltmstore.capture.acquisition import write_text_atomic
+from ltmstore.capture.board import MIN_CORNERS, BoardDetector, BoardSpec, video_frames
+from ltmstore.capture.calibrate import Intrinsics
+from ltmstore.core.errors import LtmError
 
 MAX_REPROJECTION_PX = 1.5  # RMS, at 1280 px wide (scaled with the image width)
 MAX_TILT_DEG = 20.0

@@ -1,7 +1,7 @@
 """Registration of a moving camera's frames onto one object-plane pixel grid (6D acquisitions).
 
 Camera B is a pinhole camera whose centre moves on a view plane parallel to the object, at
-``(p, q, distance)`` in the frame of :mod:`ltmstore.dims` (object plane ``z = 0``). It either
+``(p, q, distance)`` in the frame of :mod:`ltmstore.core.dims` (object plane ``z = 0``). It either
 looks straight down (optical axis along ``-Z``) or turns to keep a point ``look_at = (X, Y)`` of
 the object plane on its optical axis (image up towards ``+Y`` as far as possible). The object
 plane ``z = 0`` maps to the image by the plane-induced homography ``K [r1 r2 t]``; composed with
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,7 @@ class Intrinsics:
 @dataclass(frozen=True)
 class ObjectGrid:
     """The rectified output grid: ``shape = (H, W)`` pixels of ``pixel_size`` plane units,
-    centred on the object-plane origin (the convention of :mod:`ltmstore.dims`)."""
+    centred on the object-plane origin (the convention of :mod:`ltmstore.core.dims`)."""
 
     shape: tuple[int, int]
     pixel_size: float

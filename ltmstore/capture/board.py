@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 
 FORMAT = "ltm-board/1"
 PAPERS_MM = {  # portrait width, height

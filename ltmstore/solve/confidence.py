@@ -5,8 +5,8 @@ unobserved), for the reconstruct stage to store as ``expected_error (y, x)`` and
 ``unsupported (y, x)``:
 
 * :func:`expected_error`: a cheap held-out RMS error (one or two folds of
-  :func:`ltmstore.heldout.heldout_error`, a small fraction of the cells hidden), relative to the
-  pixel's observed range. It measures how well the method interpolates *between* observations.
+  :func:`ltmstore.solve.validate.heldout_error`, a small fraction of the cells hidden), relative to
+  the pixel's observed range. It measures how well the method interpolates *between* observations.
 * :func:`flag_unsupported`: whether the observations can support any model at all: too few
   observed cells, or too much of the lattice far from every observation (:func:`coverage`,
   :func:`coverage_gap`), where the values are guesses. Held-out cells can never reveal this,
@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from ltmstore.errors import LtmError
-from ltmstore.heldout import heldout_error, observed_range
+from ltmstore.core.errors import LtmError
 from ltmstore.solve import Geometry, Method
+from ltmstore.solve.validate import heldout_error, observed_range
 
 MIN_CELLS = 8  # below this many observed cells no smooth LTF model is determined
 # Coverage: the fraction of the lattice within COVER_RADIUS (a fraction of the lattice side) of

@@ -9,7 +9,7 @@ from contextlib import contextmanager
 
 from distributed import Client, LocalCluster
 
-from ltmstore.errors import LtmError
+from ltmstore.core.errors import LtmError
 
 # One BLAS/FFT thread per worker process: the parallelism is across pixel tiles.
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}

@@ -1,0 +1,61 @@
+"""The ``ltm`` command: parse, call the library, print. User mistakes never show a traceback.
+
+One module per command group: :mod:`~ltmstore.cli.pipeline` (demo, simulate, ingest, reconstruct,
+relight, evaluate, bench, info), :mod:`~ltmstore.cli.capture` (board, calibrate, track, sync) and
+:mod:`~ltmstore.cli.archive`; each has a ``register(sub)`` that adds its commands. The CLI sits on
+top: it may import every part of the package, and ``flows`` for the Prefect-run commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from ltmstore.core.errors import LtmError
+
+EPILOG = "Docs: README.md. Stores open with xarray.open_zarr(STORE, consolidated=False)."
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``ltm: error: ...``, exit 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``ltm`` parser with every command group registered."""
+    from ltmstore.cli import archive, capture, pipeline
+
+    parser = Parser(
+        prog="ltm", description="Relightable photographs from handheld light transport "
+        "acquisition: simulate, ingest, reconstruct (compressive sensing on Dask), relight.",
+        epilog=EPILOG)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=Parser)
+    for group in (pipeline, capture, archive):
+        group.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``ltm`` console script."""
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")  # cluster chatter off
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg quiet: our errors say it
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except LtmError as exc:
+        print(f"ltm: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("ltm: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

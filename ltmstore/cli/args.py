@@ -1,0 +1,50 @@
+"""Argument types and output helpers shared by the ``ltm`` command groups."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ltmstore.core.errors import LtmError
+
+
+def numbers(names: str, unit: str = "plane units"):
+    """An argparse type for comma-separated numbers, e.g. ``R,S``, ``P,Q`` or ``DX,DY,DZ``."""
+    count = len(names.split(","))
+
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != count:
+            raise argparse.ArgumentTypeError(f"{text!r} must look like {names} ({unit})")
+        return values
+    return parse
+
+
+def number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    return value
+
+
+def print_json(obj) -> None:
+    print(json.dumps(obj, indent=2, default=str))
+
+
+def add_output(p: argparse.ArgumentParser, default: str, what: str) -> None:
+    """``-o/--output`` (a file, ``default``) and ``--overwrite``."""
+    p.add_argument("-o", "--output", default=default, help=f"{what} (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true")
+
+
+def new_output(a: argparse.Namespace) -> Path:
+    """``--output``, refused when it exists and ``--overwrite`` is not given."""
+    out = Path(a.output)
+    if out.exists() and not a.overwrite:
+        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    return out

@@ -1,0 +1,103 @@
+"""``ltm`` commands that make an acquisition from two phones: board, calibrate, track, sync."""
+
+from __future__ import annotations
+
+import argparse
+
+from ltmstore.cli.args import add_output, new_output, number, numbers, print_json
+
+
+def register(sub) -> None:
+    """Add the capture commands to the ``ltm`` subparsers ``sub``."""
+    p = sub.add_parser("board", help="write a printable ChArUco board and its JSON spec",
+                       description="Write a ChArUco board page (PNG or PDF, true to scale) "
+                       "and OUT.json, its spec for `ltm calibrate` and `ltm track`.")
+    p.add_argument("output", help="OUT.png or OUT.pdf (the spec goes to OUT.json)")
+    p.add_argument("--size", default="A4", help="paper: A0-A5, letter or WxHmm "
+                   "(default: %(default)s, landscape)")
+    p.add_argument("--squares", help="squares NXxNY (default: as many as fit)")
+    p.add_argument("--square-mm", type=number, help="square side in mm (default: 30, or the "
+                   "largest that fits --squares)")
+    p.add_argument("--dpi", type=int, default=300, help="resolution (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_board)
+
+    p = sub.add_parser("calibrate", help="phone A's camera intrinsics from a video of the board")
+    p.add_argument("video", help="video of the board from varied angles")
+    p.add_argument("--board", required=True, help="board spec JSON from `ltm board`")
+    add_output(p, "intrinsics.json", "intrinsics file")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("track", help="light positions (poses.csv) from phone A's video",
+                       description="Detect the board in every frame, estimate phone A's pose, "
+                       "place the LED at its offset and write poses.csv (plane coordinates "
+                       "from the board centre, frame times of video A) plus "
+                       "poses.frames.csv with every frame's status.")
+    p.add_argument("video", help="phone A's video")
+    p.add_argument("--board", required=True, help="board spec JSON from `ltm board`")
+    p.add_argument("--intrinsics", required=True, help="JSON from `ltm calibrate`")
+    p.add_argument("--led-offset", type=numbers("DX,DY,DZ", "metres"), default=(0.0, 0.0, 0.0),
+                   help="LED position from the camera, metres, camera axes (x right, y down, "
+                   "z along the view), e.g. 0.012,0,0")
+    p.add_argument("--height", type=number, help="plane height for the out-of-plane flag "
+                   "(default: the median LED height)")
+    p.add_argument("--max-reprojection", type=number, default=1.5,
+                   help="largest RMS reprojection error, px at 1280 wide (default: %(default)s)")
+    p.add_argument("--max-tilt", type=number, default=20.0,
+                   help="largest tilt from the board normal, degrees (default: %(default)s)")
+    add_output(p, "poses.csv", "poses file")
+    p.set_defaults(func=cmd_track)
+
+    p = sub.add_parser("sync", help="estimate the clock offset of poses and video B",
+                       description="Correlate video B's brightness with the tracked light "
+                       "path, and record time_offset with its confidence in acquisition.json "
+                       "(the previous file is kept as acquisition.json.bak).")
+    p.add_argument("acquisition", help="acquisition folder with poses.csv from `ltm track`")
+    p.add_argument("--max-offset", type=number, default=3.0,
+                   help="search +- this many seconds (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="re-estimate a time_offset that acquisition.json already declares")
+    p.set_defaults(func=cmd_sync)
+
+
+def cmd_board(a: argparse.Namespace) -> None:
+    from ltmstore.capture.board import board_spec, parse_squares, write_board
+
+    squares = parse_squares(a.squares) if a.squares else None
+    spec = board_spec(a.size, squares=squares, square_mm=a.square_mm)
+    info = write_board(a.output, spec, dpi=a.dpi, overwrite=a.overwrite)
+    print(f"wrote {info['image']} ({spec.squares[0]}x{spec.squares[1]} squares of "
+          f"{spec.square_length * 1000:g} mm, {spec.dictionary}; print at 100 %) and "
+          f"{info['spec']}")
+
+
+def cmd_calibrate(a: argparse.Namespace) -> None:
+    from ltmstore.capture.board import load_board
+    from ltmstore.capture.calibrate import calibrate_video
+
+    spec = load_board(a.board)
+    out = new_output(a)
+    intr, report = calibrate_video(a.video, spec)
+    intr.write(out, {"calibration": report})
+    print(f"reprojection error {report['reprojection_rms_px']:.3f} px RMS over "
+          f"{report['views_used']} views; focal {report['focal_px'][0]:.1f} px; wrote {out}")
+
+
+def cmd_track(a: argparse.Namespace) -> None:
+    from ltmstore.capture.board import load_board
+    from ltmstore.capture.calibrate import load_intrinsics
+    from ltmstore.capture.track import TrackConfig, track
+
+    spec = load_board(a.board)
+    intr = load_intrinsics(a.intrinsics)
+    config = TrackConfig(led_offset=a.led_offset, max_reprojection_px=a.max_reprojection,
+                         max_tilt_deg=a.max_tilt, height=a.height)
+    print_json(track(a.video, spec, intr, a.output, config=config, overwrite=a.overwrite))
+
+
+def cmd_sync(a: argparse.Namespace) -> None:
+    from ltmstore.capture.sync import sync_acquisition
+
+    r = sync_acquisition(a.acquisition, max_offset=a.max_offset, overwrite=a.overwrite)
+    print(f"time_offset {r['time_offset']:+.4f} s (+- {r['stderr_s'] * 1000:.1f} ms, "
+          f"r2 {r['r2']:.3f}, contrast {r['contrast']:.2f}); wrote {r['acquisition']}")

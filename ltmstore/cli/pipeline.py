@@ -1,0 +1,228 @@
+"""``ltm`` commands of the pipeline: demo, simulate, ingest, reconstruct, relight, evaluate, bench,
+info."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+from ltmstore.cli.args import add_output, new_output, number, numbers, print_json
+from ltmstore.core.errors import LtmError
+
+
+def register(sub) -> None:
+    """Add the pipeline's commands to the ``ltm`` subparsers ``sub``."""
+    from ltmstore.solve import DEFAULT_METHOD, METHODS
+    from ltmstore.synthetic.scenes import SCENES
+
+    p = sub.add_parser("demo", help="simulate, ingest, reconstruct, relight and report",
+                       description="Run the whole pipeline on a simulated acquisition as a "
+                       "Prefect flow on a local Dask cluster; print SNR_Y and stage times.")
+    p.add_argument("--out", default="ltm-demo", help="output folder (default: %(default)s)")
+    p.add_argument("--scene", default="relief", choices=SCENES)
+    p.add_argument("--size", type=int, default=96,
+                   help="image side in pixels (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("simulate", help="write a simulated acquisition folder + truth.zarr")
+    p.add_argument("out", help="acquisition folder to create")
+    p.add_argument("--scene", required=True, help=f"one of {', '.join(SCENES)}")
+    p.add_argument("--path-density", type=number, default=None,
+                   help="trajectory length per unit plane area (1/m)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--lossy", action="store_true", help="mp4v .mp4 instead of lossless FFV1 .mkv")
+    p.add_argument("--raw", action="store_true",
+                   help="two-phone raw capture: phone A's video of a ChArUco board, video B, "
+                   "an unknown clock offset and no poses file (see ltm track, ltm sync)")
+    p.add_argument("--size", type=int, default=128, help="image side in pixels")
+    p.add_argument("--6d", dest="six_d", action="store_true",
+                   help="6D: camera B moves over a view plane too (view_plane, p, q poses, "
+                   "truth ltm (y, x, r, s, p, q))")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("ingest", help="acquisition folder -> store (frames, poses)")
+    p.add_argument("acquisition", help="folder with acquisition.json, video, poses.csv")
+    p.add_argument("store", help="Zarr store to create")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_ingest)
+
+    p = sub.add_parser("ingest-rti", help="classic RTI capture (images + .lp) -> store")
+    p.add_argument("lp", help="the .lp light file beside the images")
+    p.add_argument("store", help="Zarr store to create")
+    p.add_argument("--height", type=number, default=1.0,
+                   help="illumination plane height (default: %(default)s)")
+    p.add_argument("--extent", type=number, default=None,
+                   help="half-side of the square plane (default: 2 x height)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_ingest_rti)
+
+    p = sub.add_parser("reconstruct", help="resample onto a lattice and solve every pixel",
+                       description="Bin the frames onto the lattice and reconstruct every "
+                       "pixel's LTF by compressive sensing, over pixel tiles on Dask.")
+    p.add_argument("store")
+    grid = p.add_mutually_exclusive_group()
+    grid.add_argument("--lattice", help="RxS cells over the plane, e.g. 32x32")
+    grid.add_argument("--delta-rs", type=number, help="cell size in plane units")
+    p.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS),
+                   help="solver (default: %(default)s; lars is the slow per-pixel reference)")
+    p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
+    p.add_argument("--no-auto", action="store_true",
+                   help="keep the method's default regularisation instead of choosing it per "
+                   "tile by held-out error")
+    p.add_argument("--color", choices=("auto", "on", "off"), default="auto",
+                   help="also reconstruct Cb and Cr LTMs (a colour LTM); auto: when ingest "
+                   "found that the chroma changes with the light (default: %(default)s)")
+    p.add_argument("--tile", type=int, default=32, help="pixel tile side (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true", help="recompute an existing ltm")
+    p.set_defaults(func=cmd_reconstruct)
+
+    p = sub.add_parser("relight", help="render the store under new point lights")
+    p.add_argument("store")
+    p.add_argument("--light", type=numbers("R,S"), action="append", required=True,
+                   help="R,S light position on the plane; repeat to add lights")
+    p.add_argument("--view", type=numbers("P,Q"), default=None, metavar="P,Q",
+                   help="6D stores: camera position on the view plane (default: its centre)")
+    add_output(p, "relit.png", "image file")
+    p.set_defaults(func=cmd_relight)
+
+    p = sub.add_parser("evaluate", help="held-out error; SNR_Y, PSNR, error maps against a truth",
+                       description="Held-out error from the data alone (observed cells left "
+                       "out and predicted: works on real captures), and with --truth the "
+                       "paper's SNR_Y, PSNR of relit images and per-pixel error maps.")
+    p.add_argument("store")
+    p.add_argument("--truth", help="truth.zarr written by `ltm simulate`")
+    p.add_argument("--maps", help="write the per-pixel error maps (needs --truth) to this PNG")
+    p.add_argument("--method", help="method for the held-out test (default: the store's)")
+    p.add_argument("--folds", type=int, default=5, help="held-out folds (default: %(default)s)")
+    p.add_argument("--pixels", type=int, default=4096,
+                   help="pixels sampled for the held-out test (default: %(default)s)")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("bench", help="every method: speed against accuracy, JSON and charts",
+                       description="Sweep every method over scenes, path densities and lattice "
+                       "sizes on simulated captures; write bench.json and PNG charts.")
+    p.add_argument("--out", default="bench/results", help="output folder (default: %(default)s)")
+    p.add_argument("--quick", action="store_true", help="a small sweep (a minute or two)")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("info", help="print a store's provenance",
+                       description="Software version and commit, parameters, input sha256, "
+                       "timings per stage and completion of a store (JSON).")
+    p.add_argument("store")
+    p.add_argument("--raw", action="store_true", help="every group attribute as stored")
+    p.set_defaults(func=cmd_info)
+
+
+def cmd_demo(a: argparse.Namespace) -> None:
+    from flows.demo import run_demo
+
+    run_demo(a.out, scene=a.scene, size=a.size, seed=a.seed, overwrite=a.overwrite)
+
+
+def cmd_simulate(a: argparse.Namespace) -> None:
+    if getattr(a, "raw", False):
+        return cmd_simulate_raw(a)
+    from ltmstore.synthetic.simulate import simulate_acquisition
+
+    density = {} if a.path_density is None else {"path_density": a.path_density}
+    summary = simulate_acquisition(a.out, scene=a.scene, seed=a.seed, lossy=a.lossy,
+                                   size=a.size, overwrite=a.overwrite,
+                                   view=getattr(a, "six_d", False), **density)
+    print_json(summary)
+
+
+def cmd_simulate_raw(a: argparse.Namespace) -> None:
+    from ltmstore.synthetic.raw import simulate_raw
+
+    if getattr(a, "six_d", False) or a.lossy:
+        raise LtmError("--raw simulates a 4D capture with lossless videos; it cannot be "
+                       "combined with --6d or --lossy")
+    density = {} if a.path_density is None else {"path_density": a.path_density}
+    print_json(simulate_raw(a.out, scene=a.scene, seed=a.seed, size=a.size,
+                             overwrite=a.overwrite, **density))
+
+
+def cmd_ingest(a: argparse.Namespace) -> None:
+    from ltmstore.stages.ingest import ingest
+
+    print_json(ingest(a.acquisition, a.store, overwrite=a.overwrite))
+
+
+def cmd_ingest_rti(a: argparse.Namespace) -> None:
+    from ltmstore.stages.ingest_rti import ingest_rti
+
+    print_json(ingest_rti(a.lp, a.store, height=a.height, extent=a.extent,
+                           overwrite=a.overwrite))
+
+
+def cmd_reconstruct(a: argparse.Namespace) -> None:
+    from ltmstore.core.dims import parse_lattice
+    from ltmstore.stages.reconstruct import reconstruct
+
+    lattice = parse_lattice(a.lattice) if a.lattice else None
+    info = reconstruct(a.store, scheduler=a.scheduler, lattice=lattice, delta_rs=a.delta_rs,
+                       method=a.method, auto=not a.no_auto, tile=a.tile,
+                       color={"auto": None, "on": True, "off": False}[a.color],
+                       overwrite=a.overwrite)
+    print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
+          f"path density {info['path_density']:.1f}/unit  method {info['method']}  "
+          f"resample {info['timings']['resample_s']:.1f} s  "
+          f"solve {info['timings']['solve_s']:.1f} s")
+
+
+def cmd_relight(a: argparse.Namespace) -> None:
+    import imageio.v3 as iio
+    import numpy as np
+
+    from ltmstore.core.store import open_store
+    from ltmstore.core.transfer import encode_images
+    from ltmstore.stages.relight import LightClampWarning, relight
+
+    ds = open_store(a.store)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", LightClampWarning)
+        images = relight(ds, np.array(a.light), view=a.view).sum("light").values[None]
+    for w in caught:
+        print(f"ltm: warning: {w.message}", file=sys.stderr)
+    transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
+    out = new_output(a)
+    try:
+        iio.imwrite(out, encode_images(images, transfer)[0])
+    except (OSError, ValueError) as exc:
+        raise LtmError(f"cannot write image {str(out)!r}: {exc}") from exc
+    print(f"wrote {out}")
+
+
+def cmd_evaluate(a: argparse.Namespace) -> None:
+    from ltmstore.core.store import open_store
+    from ltmstore.judge.evaluate import compare_stores
+    from ltmstore.judge.heldout import heldout_store
+
+    method = open_store(a.store).attrs["stages"].get("reconstruct", {}).get("method", "cs")
+    report = {"heldout": heldout_store(a.store, method=a.method or method, folds=a.folds,
+                                       max_pixels=a.pixels)}
+    if a.truth:
+        report["truth"] = compare_stores(a.store, a.truth, maps_png=a.maps)
+    print_json(report)
+
+
+def cmd_bench(a: argparse.Namespace) -> None:
+    from ltmstore.judge import benchmark
+
+    options = {"densities": (15.0, 27.0), "lattices": (16, 32), "size": 16} if a.quick else {}
+    records = benchmark.run(progress=lambda line: print(line, flush=True), **options)
+    result = benchmark.write(records, Path(a.out), command="ltm bench" + " --quick" * a.quick)
+    for row in result["summary"]:
+        print(f"{row['label']:<22s} {row['snr_db']:6.2f} dB  {row['ms_per_pixel']:9.3f} ms/pixel")
+    print(f"wrote {a.out}/bench.json and charts: {', '.join(result['charts'].values())}")
+
+
+def cmd_info(a: argparse.Namespace) -> None:
+    from ltmstore.core.store import open_group, store_summary
+
+    print_json(open_group(a.store).attrs.asdict() if a.raw else store_summary(a.store))

@@ -1,0 +1,174 @@
+"""Video frames and poses to the store: streaming, linearised, luminance plus chroma ratios.
+
+Layout written (ARCHITECTURE.md section 3.2), for ``n`` frames of ``H x W`` pixels:
+
+* coordinates ``t (t,)`` float64 seconds, ``y (H,)`` and ``x (W,)`` int64, ``channel`` ("cb", "cr");
+* ``frames (t, y, x)`` float32 linear luminance Y (BT.601), chunks
+  ``(chunk_frames, min(H, 256), min(W, 256))`` (16 x 16 pixels for registered 6D frames);
+* ``pose_r, pose_s, pose_z (t,)`` float64 light position at each frame (NaN where the pose record
+  does not cover the frame), plus ``pose_p, pose_q`` for 6D acquisitions; ``pose_valid (t,)`` bool;
+* ``chroma (y, x, channel)`` float32: ``sum_t Cb / sum_t Y`` and ``sum_t Cr / sum_t Y`` over the
+  valid frames (0 where ``sum_t Y == 0``): colour as a ratio to luminance, illumination invariant;
+* group attribute ``acquisition`` (provenance, input hashes) and stage ``ingest``.
+
+A frame is rejected (``pose_valid`` False) for the first of these reasons that applies:
+``beyond_poses`` (its time lies outside the pose record or in a gap of it longer than
+:data:`MAX_POSE_GAP_S`), ``out_of_plane`` (the light is further than the z tolerance from the
+plane height; default :data:`Z_TOLERANCE_FRACTION` of the height, about a 10 % change of
+irradiance by the inverse-square law) and ``outside_bounds`` (the light is outside the plane
+rectangle, or the camera outside the view plane).
+
+6D acquisitions (``view_plane`` in ``acquisition.json``, ``p, q`` columns in ``poses.csv``)
+whose ``view_plane`` declares camera B (``distance``, ``intrinsics``, ``grid``): every frame is
+registered onto the declared object-plane grid by the plane-induced homography of
+camera B at that frame's interpolated ``(p, q)`` (:mod:`ltmstore.capture.register`), after
+linearisation; grid pixels outside the frame are NaN in ``frames`` (unobserved in that frame),
+and chroma sums skip them.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from ltmstore.capture.acquisition import Acquisition, load_acquisition, load_poses
+from ltmstore.capture.register import ViewRig
+from ltmstore.capture.video import VideoReader
+from ltmstore.core.dims import Plane
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import begin_stage, new_store
+from ltmstore.stages.frames import (
+    DEFAULT_CHUNK_FRAMES,
+    STAGE,
+    FrameSink,
+    finish_ingest,
+    lights_at,
+)
+
+Z_TOLERANCE_FRACTION = 0.05
+
+
+def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: bool = False,
+           z_tolerance: float | None = None, progress: bool = True,
+           chunk_frames: int = DEFAULT_CHUNK_FRAMES, hashes: dict[str, str] | None = None) -> dict:
+    """Decode an acquisition folder's video and poses into a new store.
+
+    Parameters
+    ----------
+    acq_dir : str or PathLike
+        The acquisition folder (ARCHITECTURE.md section 3.1).
+    store : str or PathLike
+        Where to create the Zarr store; written beside and moved into place when complete.
+    overwrite : bool, default False
+        Replace an existing store instead of refusing.
+    z_tolerance : float, optional
+        Largest accepted ``|z - height|`` of the light, in plane units; default
+        :data:`Z_TOLERANCE_FRACTION` times the plane height.
+    progress : bool, default True
+        Show a progress bar.
+    chunk_frames : int, default 32
+        Frames per chunk along ``t``, and frames held in memory at once.
+    hashes : dict, optional
+        ``Acquisition.sha256()`` of the inputs when the caller has just computed it (the
+        archive does, to judge staleness); otherwise the inputs are hashed here.
+
+    Returns
+    -------
+    dict
+        ``n_frames``, ``n_valid``, ``rejected`` (per reason), ``fps``, ``frame_size``,
+        ``z_tolerance``, ``timings`` (``setup``: reading and hashing the inputs; ``frames``:
+        decoding and writing) and ``seconds`` (total) (also stored as stage ``ingest``), and
+        ``store``.
+
+    Raises
+    ------
+    LtmError
+        For a bad acquisition folder, an undecodable video, an existing store without
+        ``overwrite`` or fewer than :data:`MIN_VALID_FRAMES` valid frames.
+    """
+    started = time.perf_counter()
+    acq = load_acquisition(acq_dir)
+    poses = load_poses(acq.poses)
+    if acq.view_plane is not None and poses.p is None:
+        raise LtmError(f"{str(acq.poses)}: acquisition.json declares a view_plane but the poses "
+                       "have no p, q columns; expected header 't,r,s,z,p,q'")
+    z_tolerance = _z_tolerance(z_tolerance, acq.plane)
+    rig = _rig(acq)
+    light = partial(lights_at, poses=poses, plane=acq.plane, z_tolerance=z_tolerance,
+                    time_offset=acq.time_offset, view_plane=acq.view_plane)
+    hashes = hashes or _sha256(acq)
+    hashed = time.perf_counter()
+    with VideoReader(acq.video) as video, new_store(store, overwrite=overwrite) as group:
+        begin_stage(group, STAGE)
+        sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames, rig=rig)
+        bar = tqdm(video, total=video.frame_count, disable=not progress, unit="frame",
+                   desc="ingest")
+        for i, rgb in enumerate(bar):
+            at = light(np.array([i / video.fps]))
+            view = None
+            if rig is not None:
+                _check_frame_size(rgb, rig, acq.video)
+                view = (float(at.view["p"][0]), float(at.view["q"][0]))
+            sink.add(rgb, bool(at.valid[0]), source=f"video {str(acq.video)!r} frame {i}",
+                     view=view)
+        t = np.arange(sink.n) / video.fps
+        timings = {"setup": round(hashed - started, 3),
+                   "frames": round(time.perf_counter() - hashed, 3)}
+        info = {"fps": video.fps, "frame_size": list(sink.shape), "z_tolerance": z_tolerance,
+                "time_offset": acq.time_offset, "chunk_frames": chunk_frames, "timings": timings}
+        if rig is not None:
+            info["registration"] = {
+                "camera_frame_size": [rig.intrinsics.height, rig.intrinsics.width],
+                "observed_fraction_mean": sink.observed[0] / max(sink.observed[1], 1)}
+        provenance = _provenance(acq, hashes, video, sink, rig)
+        record = finish_ingest(group, sink, t, light(t), acquisition=provenance, info=info,
+                               started=started)
+    return {**record, "store": str(store)}
+
+
+def _sha256(acq: Acquisition) -> dict[str, str]:
+    try:
+        return acq.sha256()
+    except OSError as exc:
+        raise LtmError(f"cannot read the inputs of {str(acq.folder)!r}: "
+                       f"{exc.strerror or exc}") from exc
+
+
+def _rig(acq: Acquisition) -> ViewRig | None:
+    """Camera B of a 6D acquisition, when ``view_plane`` declares one (else the frames are taken
+    as already registered on the object grid)."""
+    view = acq.raw.get("view_plane")
+    if acq.view_plane is None or not any(k in view for k in ("distance", "intrinsics", "grid")):
+        return None
+    return ViewRig.from_json(view, f"{acq.folder / 'acquisition.json'}: view_plane")
+
+
+def _check_frame_size(rgb: np.ndarray, rig: ViewRig, video: Path) -> None:
+    k = rig.intrinsics
+    if rgb.shape[:2] != (k.height, k.width):
+        raise LtmError(f"video {str(video)!r} frames are {rgb.shape[1]}x{rgb.shape[0]} pixels; "
+                       f"view_plane intrinsics declare {k.width}x{k.height}")
+
+
+def _provenance(acq: Acquisition, hashes: dict, video: VideoReader, sink: FrameSink,
+                rig: ViewRig | None = None) -> dict:
+    meta = {"source": "video", "folder": str(acq.folder), "video": acq.raw["video"],
+            "poses": acq.raw["poses"], "sha256": hashes, "plane": acq.plane.to_json(),
+            "transfer": acq.transfer, "time_offset": acq.time_offset, "fps": video.fps,
+            "frame_size": list(sink.shape)}
+    if acq.view_plane is not None:
+        meta["view_plane"] = {**acq.view_plane, **(rig.to_json() if rig is not None else {})}
+    return meta
+
+
+def _z_tolerance(value: float | None, plane: Plane) -> float:
+    if value is None:
+        return Z_TOLERANCE_FRACTION * plane.height
+    if not (np.isfinite(value) and value >= 0):
+        raise LtmError(f"z_tolerance {value!r} must be a non-negative number (plane units)")
+    return float(value)
