@@ -1,0 +1,91 @@
+"""Per-pixel least-squares fits of a light basis to a store's display-referred colours.
+
+RTIViewer, Relight and OpenLIME show the evaluated coefficients as they are: the coefficients
+must fit display (sRGB-encoded) values in ``[0, 1]``, as a camera's JPEGs would give them. The
+store's linear RGB is scaled by one exposure for the whole export (``white``: the 99.5th
+percentile of the linear RGB over pixels and lattice cells maps to 1, the rule `ltm relight`
+uses per image), clipped and sRGB-encoded. All pixels share the lights, so one pseudo-inverse of
+the basis matrix fits them all; the store is read in blocks of rows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import xarray as xr
+
+from ltmstore.core.transfer import linear_to_srgb
+
+WHITE_PERCENTILE = 99.5
+BLOCK_BYTES = 64 * 2**20  # float32 values read at once
+SAMPLE_VALUES = 2 * 10**7  # at most this many values for the exposure
+
+
+def _read(values: xr.DataArray, **index) -> np.ndarray:
+    return np.nan_to_num(np.asarray(values.isel(**index).values, dtype=np.float32), nan=0.0)
+
+
+def _blocks(values: xr.DataArray) -> Iterator[tuple[slice, np.ndarray]]:
+    """``(row slice, float32 array (rows, x, M, 3))`` in blocks of about ``BLOCK_BYTES``."""
+    ny = values.sizes["y"]
+    row_bytes = 4 * values.size // ny
+    step = max(1, BLOCK_BYTES // row_bytes)
+    for y0 in range(0, ny, step):
+        rows = slice(y0, min(y0 + step, ny))
+        yield rows, _read(values, y=rows)
+
+
+def exposure(values: xr.DataArray) -> float:
+    """The linear value shown as white: the 99.5th percentile of the RGB over pixels and
+    lights (on a regular subsample of at most ``SAMPLE_VALUES`` values)."""
+    stride = max(1, int(np.ceil(np.sqrt(values.size / SAMPLE_VALUES))))
+    sample = _read(values, y=slice(None, None, stride), x=slice(None, None, stride))
+    return max(float(np.percentile(sample, WHITE_PERCENTILE)), 1e-12)
+
+
+def display(linear: np.ndarray, white: float) -> np.ndarray:
+    """Linear RGB to display-referred sRGB in ``[0, 1]`` at exposure ``white``."""
+    return linear_to_srgb(linear / white)
+
+
+def fit_rgb(values: xr.DataArray, basis: np.ndarray, white: float) -> np.ndarray:
+    """Coefficients of ``basis (M, B)`` fitted to each pixel's and channel's display values.
+
+    Returns
+    -------
+    ndarray of float32, shape ``(y, x, B, 3)``, in display units (``[0, 1]`` scale).
+    """
+    pinv = np.linalg.pinv(basis).astype(np.float32)
+    out = np.empty((values.sizes["y"], values.sizes["x"], basis.shape[1], 3), np.float32)
+    for rows, block in _blocks(values):
+        out[rows] = np.einsum("bm,yxmc->yxbc", pinv, display(block, white))
+    return out
+
+
+def fit_lrgb(values: xr.DataArray, basis: np.ndarray,
+             white: float) -> tuple[np.ndarray, np.ndarray]:
+    """Luminance coefficients and one colour per pixel (the PTM LRGB model ``rgb * L``).
+
+    The colour ``n`` is the pixel's mean display colour over the lights, scaled so that its
+    largest channel is 1; the luminance at each light is the least-squares factor of the display
+    colour along ``n`` (``D . n / n . n``), and ``basis`` is fitted to it.
+
+    Returns
+    -------
+    coefficients : ndarray of float32, shape ``(y, x, B)``, display units.
+    colour : ndarray of float32, shape ``(y, x, 3)``, in ``[0, 1]``.
+    """
+    pinv = np.linalg.pinv(basis).astype(np.float32)
+    shape = (values.sizes["y"], values.sizes["x"])
+    coef = np.empty((*shape, basis.shape[1]), np.float32)
+    colour = np.empty((*shape, 3), np.float32)
+    for rows, block in _blocks(values):
+        d = display(block, white)
+        mean = d.mean(axis=2)
+        peak = mean.max(axis=-1, keepdims=True)
+        n = np.where(peak > 0, mean / np.where(peak > 0, peak, 1), 1.0)
+        lum = np.einsum("yxmc,yxc->yxm", d, n) / np.sum(n * n, axis=-1)[..., None]
+        coef[rows] = np.einsum("bm,yxm->yxb", pinv, lum)
+        colour[rows] = n
+    return coef, colour
