@@ -4,8 +4,14 @@ RTIViewer, Relight and OpenLIME show the evaluated coefficients as they are: the
 must fit display (sRGB-encoded) values in ``[0, 1]``, as a camera's JPEGs would give them. The
 store's linear RGB is scaled by one exposure for the whole export (``white``: the 99.5th
 percentile of the linear RGB over pixels and lattice cells maps to 1, the rule `ltm relight`
-uses per image), clipped and sRGB-encoded. All pixels share the lights, so one pseudo-inverse of
-the basis matrix fits them all; the store is read in blocks of rows.
+uses per image), clipped and sRGB-encoded. All pixels share the lights, so one regularised
+pseudo-inverse of the basis matrix fits them all; the store is read in blocks of rows.
+
+The fit is ridge regression with a penalty ``RIDGE`` times the basis matrix's largest singular
+value. Lights on a plane cover only a cap of the hemisphere, where the HSH terms are nearly
+collinear: the plain least-squares coefficients are large and cancel, and 8 bits cannot hold
+them (on the small relief store, HSH order 3 relit at held-out lights: 40.6 dB in floating
+point but 29.8 dB once quantised; with the ridge 39.0 and 38.9 dB; PTM loses 0.1 dB).
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import xarray as xr
 from ltmstore.core.transfer import linear_to_srgb
 
 WHITE_PERCENTILE = 99.5
+RIDGE = 0.01
 BLOCK_BYTES = 64 * 2**20  # float32 values read at once
 SAMPLE_VALUES = 2 * 10**7  # at most this many values for the exposure
 
@@ -49,6 +56,13 @@ def display(linear: np.ndarray, white: float) -> np.ndarray:
     return linear_to_srgb(linear / white)
 
 
+def solver(basis: np.ndarray) -> np.ndarray:
+    """``(B, M)``: the ridge-regularised pseudo-inverse of ``basis (M, B)``."""
+    lam = RIDGE * np.linalg.norm(basis, 2)
+    gram = basis.T @ basis + lam ** 2 * np.eye(basis.shape[1])
+    return np.linalg.solve(gram, basis.T).astype(np.float32)
+
+
 def fit_rgb(values: xr.DataArray, basis: np.ndarray, white: float) -> np.ndarray:
     """Coefficients of ``basis (M, B)`` fitted to each pixel's and channel's display values.
 
@@ -56,7 +70,7 @@ def fit_rgb(values: xr.DataArray, basis: np.ndarray, white: float) -> np.ndarray
     -------
     ndarray of float32, shape ``(y, x, B, 3)``, in display units (``[0, 1]`` scale).
     """
-    pinv = np.linalg.pinv(basis).astype(np.float32)
+    pinv = solver(basis)
     out = np.empty((values.sizes["y"], values.sizes["x"], basis.shape[1], 3), np.float32)
     for rows, block in _blocks(values):
         out[rows] = np.einsum("bm,yxmc->yxbc", pinv, display(block, white))
@@ -76,7 +90,7 @@ def fit_lrgb(values: xr.DataArray, basis: np.ndarray,
     coefficients : ndarray of float32, shape ``(y, x, B)``, display units.
     colour : ndarray of float32, shape ``(y, x, 3)``, in ``[0, 1]``.
     """
-    pinv = np.linalg.pinv(basis).astype(np.float32)
+    pinv = solver(basis)
     shape = (values.sizes["y"], values.sizes["x"])
     coef = np.empty((*shape, basis.shape[1]), np.float32)
     colour = np.empty((*shape, 3), np.float32)
