@@ -7,27 +7,63 @@ lattice cells' directions from the object centre, ``(r, s, h) / |(r, s, h)|``
 (:meth:`ltmstore.solve.Geometry.directions`), so the export approximates the near light by one
 direction per cell, the same for every pixel (as RTIViewer and the web viewers assume). A store
 of far lights (directions stored directly) changes only :func:`light_samples`.
+
+The colours are read block by block straight from the Zarr arrays (whole shards, no Dask graph
+over the small inner chunks): a 96 x 96 px store on a 32 x 32 lattice reads in under a second.
 """
 
 from __future__ import annotations
 
+import os
+from dataclasses import dataclass
+
 import numpy as np
 import xarray as xr
+import zarr
 
 from ltmstore.core.dims import (
     CHROMA,
     CHROMA_LTM,
-    COLOR,
-    COLOR_CHANNELS,
     LIGHT_DIMS,
     LTM,
     Lattice,
     rgb_from_ycbcr,
 )
 from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_group, open_store
 from ltmstore.solve import Geometry
 
-CELL = "cell"
+
+@dataclass(frozen=True)
+class LightSamples:
+    """A store's linear RGB at each of its light directions, read on demand by rows.
+
+    Attributes
+    ----------
+    directions : ndarray, shape (M, 3)
+        Unit light directions, one per lattice cell in C order of ``(r, s)``.
+    shape : tuple of int
+        ``(height, width)`` in pixels.
+    """
+
+    directions: np.ndarray
+    shape: tuple[int, int]
+    luminance: zarr.Array
+    chroma: tuple[zarr.Array, zarr.Array] | np.ndarray | None  # Cb, Cr LTMs, or ratios (y, x, 2)
+
+    def rows(self, rows: slice, columns: slice = slice(None)) -> np.ndarray:
+        """Linear RGB ``(rows, x, M, 3)`` of a block of pixels (NaN read as 0)."""
+        y = np.nan_to_num(self.luminance[rows, columns], nan=0.0)
+        y = y.reshape(*y.shape[:2], -1)
+        if self.chroma is None:
+            cb = cr = np.zeros_like(y)
+        elif isinstance(self.chroma, np.ndarray):
+            ratios = self.chroma[rows, columns]
+            cb, cr = y * ratios[..., 0:1], y * ratios[..., 1:2]
+        else:
+            cb, cr = (np.nan_to_num(a[rows, columns], nan=0.0).reshape(y.shape)
+                      for a in self.chroma)
+        return np.stack(rgb_from_ycbcr(y, cb, cr), axis=-1).astype(np.float32)
 
 
 def _geometry(ds: xr.Dataset) -> Geometry:
@@ -45,40 +81,34 @@ def _half(centres: np.ndarray) -> float:
     return float(centres[1] - centres[0]) / 2 if len(centres) > 1 else 0.5
 
 
-def _luminance_and_chroma(ds: xr.Dataset) -> tuple[xr.DataArray, xr.DataArray, xr.DataArray]:
-    """Y, Cb, Cr LTMs ``(y, x, r, s)``: from a colour LTM, or from the stored chroma ratios."""
-    y = ds[LTM]
+def _chroma(ds: xr.Dataset, group: zarr.Group):
     if all(name in ds for name in CHROMA_LTM.values()):
-        return y, ds[CHROMA_LTM["cb"]], ds[CHROMA_LTM["cr"]]
-    if CHROMA not in ds:
-        return y, xr.zeros_like(y), xr.zeros_like(y)
-    chroma = ds[CHROMA]
-    return y, y * chroma.sel(channel="cb", drop=True), y * chroma.sel(channel="cr", drop=True)
+        return group[CHROMA_LTM["cb"]], group[CHROMA_LTM["cr"]]
+    if CHROMA in ds:
+        return np.asarray(ds[CHROMA].sel(channel=["cb", "cr"]).transpose("y", "x", "channel"))
+    return None
 
 
-def light_samples(ds: xr.Dataset) -> tuple[np.ndarray, xr.DataArray]:
+def light_samples(store: str | os.PathLike) -> LightSamples:
     """Light directions and the linear RGB the store predicts at each of them.
 
     Parameters
     ----------
-    ds : xarray.Dataset
-        A reconstructed store (:func:`ltmstore.open_store`).
+    store : path-like
+        A reconstructed store.
 
     Returns
     -------
-    directions : ndarray, shape (M, 3)
-        Unit light directions, one per lattice cell in C order of ``(r, s)``.
-    values : xarray.DataArray
-        Dims ``(y, x, cell, color)``, linear RGB, Dask-backed (nothing read yet).
+    LightSamples
+        ``directions (M, 3)`` and ``rows(...)`` giving linear RGB ``(rows, x, M, 3)``.
     """
+    ds = open_store(store)
     if LTM not in ds:
         raise LtmError("the store has no complete ltm; run `ltm reconstruct` first")
-    extra = [d for d in ds[LTM].dims if d not in ("y", "x", *LIGHT_DIMS)]
-    if extra:
-        raise LtmError(f"the store's ltm has view axes {extra}: export holds one view; "
+    if ds[LTM].dims != ("y", "x", *LIGHT_DIMS):
+        raise LtmError(f"the store's ltm has dims {ds[LTM].dims}: export holds one view; "
                        "6D stores are not supported yet")
-    directions = _geometry(ds).directions()
-    rgb = xr.concat(rgb_from_ycbcr(*_luminance_and_chroma(ds)), dim=COLOR)
-    rgb = rgb.assign_coords({COLOR: list(COLOR_CHANNELS)}).transpose("y", "x", *LIGHT_DIMS, COLOR)
-    values = rgb.stack({CELL: LIGHT_DIMS}).transpose("y", "x", CELL, COLOR)
-    return directions, values.drop_vars([CELL, *LIGHT_DIMS])
+    group = open_group(store)
+    return LightSamples(directions=_geometry(ds).directions(),
+                        shape=(ds.sizes["y"], ds.sizes["x"]), luminance=group[LTM],
+                        chroma=_chroma(ds, group))

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 
 from ltmstore.core.errors import LtmError
-from ltmstore.core.store import open_store
 from ltmstore.share import bases, fit, hsh_rti, ptm, relight_web
 from ltmstore.share.atomic import atomic_output, check_output
 from ltmstore.share.directions import light_samples
@@ -68,7 +67,8 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
     """
     _check(fmt, order, basis, color)
     check_output(out, overwrite)
-    directions, values = light_samples(open_store(store))
+    values = light_samples(store)
+    directions = values.directions
     white = fit.exposure(values)
     kind = basis if fmt == "relight" else fmt
     terms = (bases.relight_ptm_terms(directions) if fmt == "relight" and basis == "ptm"
@@ -85,6 +85,6 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
         else:
             relight_web.write(tmp, fit.fit_rgb(values, terms, white), basis, quality=quality)
     return {"path": os.fspath(out), "format": fmt, "basis": kind, "color": color,
-            "terms": int(terms.shape[1]), "width": int(values.sizes["x"]),
-            "height": int(values.sizes["y"]), "directions": int(len(directions)),
+            "terms": int(terms.shape[1]), "width": values.shape[1],
+            "height": values.shape[0], "directions": int(len(directions)),
             "white": white}

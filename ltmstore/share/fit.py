@@ -19,9 +19,9 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import numpy as np
-import xarray as xr
 
 from ltmstore.core.transfer import linear_to_srgb
+from ltmstore.share.directions import LightSamples
 
 WHITE_PERCENTILE = 99.5
 RIDGE = 0.01
@@ -29,25 +29,21 @@ BLOCK_BYTES = 64 * 2**20  # float32 values read at once
 SAMPLE_VALUES = 2 * 10**7  # at most this many values for the exposure
 
 
-def _read(values: xr.DataArray, **index) -> np.ndarray:
-    return np.nan_to_num(np.asarray(values.isel(**index).values, dtype=np.float32), nan=0.0)
-
-
-def _blocks(values: xr.DataArray) -> Iterator[tuple[slice, np.ndarray]]:
-    """``(row slice, float32 array (rows, x, M, 3))`` in blocks of about ``BLOCK_BYTES``."""
-    ny = values.sizes["y"]
-    row_bytes = 4 * values.size // ny
-    step = max(1, BLOCK_BYTES // row_bytes)
+def _blocks(samples: LightSamples) -> Iterator[tuple[slice, np.ndarray]]:
+    """``(row slice, linear RGB (rows, x, M, 3))`` in blocks of about ``BLOCK_BYTES``."""
+    ny, nx = samples.shape
+    step = max(1, BLOCK_BYTES // (4 * 3 * nx * len(samples.directions)))
     for y0 in range(0, ny, step):
         rows = slice(y0, min(y0 + step, ny))
-        yield rows, _read(values, y=rows)
+        yield rows, samples.rows(rows)
 
 
-def exposure(values: xr.DataArray) -> float:
+def exposure(samples: LightSamples) -> float:
     """The linear value shown as white: the 99.5th percentile of the RGB over pixels and
     lights (on a regular subsample of at most ``SAMPLE_VALUES`` values)."""
-    stride = max(1, int(np.ceil(np.sqrt(values.size / SAMPLE_VALUES))))
-    sample = _read(values, y=slice(None, None, stride), x=slice(None, None, stride))
+    size = 3 * np.prod(samples.shape) * len(samples.directions)
+    stride = max(1, int(np.ceil(np.sqrt(size / SAMPLE_VALUES))))
+    sample = samples.rows(slice(None, None, stride), slice(None, None, stride))
     return max(float(np.percentile(sample, WHITE_PERCENTILE)), 1e-12)
 
 
@@ -63,7 +59,7 @@ def solver(basis: np.ndarray) -> np.ndarray:
     return np.linalg.solve(gram, basis.T).astype(np.float32)
 
 
-def fit_rgb(values: xr.DataArray, basis: np.ndarray, white: float) -> np.ndarray:
+def fit_rgb(samples: LightSamples, basis: np.ndarray, white: float) -> np.ndarray:
     """Coefficients of ``basis (M, B)`` fitted to each pixel's and channel's display values.
 
     Returns
@@ -71,13 +67,13 @@ def fit_rgb(values: xr.DataArray, basis: np.ndarray, white: float) -> np.ndarray
     ndarray of float32, shape ``(y, x, B, 3)``, in display units (``[0, 1]`` scale).
     """
     pinv = solver(basis)
-    out = np.empty((values.sizes["y"], values.sizes["x"], basis.shape[1], 3), np.float32)
-    for rows, block in _blocks(values):
-        out[rows] = np.einsum("bm,yxmc->yxbc", pinv, display(block, white))
+    out = np.empty((*samples.shape, basis.shape[1], 3), np.float32)
+    for rows, block in _blocks(samples):
+        out[rows] = np.einsum("bm,yxmc->yxbc", pinv, display(block, white), optimize=True)
     return out
 
 
-def fit_lrgb(values: xr.DataArray, basis: np.ndarray,
+def fit_lrgb(samples: LightSamples, basis: np.ndarray,
              white: float) -> tuple[np.ndarray, np.ndarray]:
     """Luminance coefficients and one colour per pixel (the PTM LRGB model ``rgb * L``).
 
@@ -91,15 +87,14 @@ def fit_lrgb(values: xr.DataArray, basis: np.ndarray,
     colour : ndarray of float32, shape ``(y, x, 3)``, in ``[0, 1]``.
     """
     pinv = solver(basis)
-    shape = (values.sizes["y"], values.sizes["x"])
-    coef = np.empty((*shape, basis.shape[1]), np.float32)
-    colour = np.empty((*shape, 3), np.float32)
-    for rows, block in _blocks(values):
+    coef = np.empty((*samples.shape, basis.shape[1]), np.float32)
+    colour = np.empty((*samples.shape, 3), np.float32)
+    for rows, block in _blocks(samples):
         d = display(block, white)
         mean = d.mean(axis=2)
         peak = mean.max(axis=-1, keepdims=True)
         n = np.where(peak > 0, mean / np.where(peak > 0, peak, 1), 1.0)
-        lum = np.einsum("yxmc,yxc->yxm", d, n) / np.sum(n * n, axis=-1)[..., None]
-        coef[rows] = np.einsum("bm,yxm->yxb", pinv, lum)
+        lum = np.einsum("yxmc,yxc->yxm", d, n, optimize=True) / np.sum(n * n, axis=-1)[..., None]
+        coef[rows] = np.einsum("bm,yxm->yxb", pinv, lum, optimize=True)
         colour[rows] = n
     return coef, colour
