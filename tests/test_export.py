@@ -243,6 +243,25 @@ def test_refuses_existing_output_and_bad_options(small_store, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["out.rti"]  # no temporary left behind
 
 
+def test_failed_export_leaves_nothing(small_store, tmp_path, monkeypatch):
+    """A writer that fails half-way leaves neither a partial output nor a temporary file."""
+    from ltmstore.share import hsh_rti
+
+    def broken(path, coef):
+        Path(path).write_bytes(b"#HSH1.2\n3\n")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(hsh_rti, "write", broken)
+    with pytest.raises(OSError, match="disk full"):
+        export(small_store, tmp_path / "out.rti", fmt="hsh")
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "web").mkdir()
+    (tmp_path / "web" / "info.json").write_text("{}")
+    with pytest.raises(LtmError, match="quality"):
+        export(small_store, tmp_path / "web", fmt="relight", quality=0, overwrite=True)
+    assert [p.name for p in (tmp_path / "web").iterdir()] == ["info.json"]
+
+
 def test_cli_export(small_store, tmp_path):
     out = tmp_path / "web"
     ok = run_ltm("export", str(small_store), str(out), "--format", "relight")

@@ -22,7 +22,7 @@ HSH_ORDERS = (2, 3)
 WEB_HSH_ORDER = 2  # the web readers evaluate 9 HSH terms
 
 
-def _check(fmt: str, order: int, basis: str, color: str) -> None:
+def _check(fmt: str, order: int, basis: str, color: str, quality: int) -> None:
     if fmt not in FORMATS:
         raise LtmError(f"--format {fmt!r} is unknown; expected one of {', '.join(FORMATS)}")
     if order not in HSH_ORDERS:
@@ -33,6 +33,8 @@ def _check(fmt: str, order: int, basis: str, color: str) -> None:
         raise LtmError(f"--color {color!r} must be one of {', '.join(COLORS)}")
     if color == "lrgb" and fmt != "ptm":
         raise LtmError("--color lrgb is a PTM format; use it with --format ptm")
+    if not 1 <= quality <= 100:
+        raise LtmError(f"--quality {quality!r} must be a JPEG quality from 1 to 100")
 
 
 def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order: int = 3,
@@ -65,7 +67,7 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
         What was written: path, format, basis terms, size, number of light directions and the
         exposure ``white`` (the linear value shown as 1.0).
     """
-    _check(fmt, order, basis, color)
+    _check(fmt, order, basis, color, quality)
     check_output(out, overwrite)
     values = light_samples(store)
     directions = values.directions
