@@ -24,10 +24,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import xarray as xr
 import zarr
 from PIL import Image
 
 import ltmstore
+from ltmstore.core.dims import rgb_from_ycbcr
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.share.export import export
@@ -167,15 +169,19 @@ CASES = {  # name: (export arguments, output name, reader, lowest PSNRs: against
 @functools.cache
 def reference(store: str):
     """Lights inside the plane, their directions, ``ltmstore.relight`` there (linear RGB), and
-    the store's RGB at its cells (``to_rgb``, what relight uses) with the cells' directions."""
+    the store's RGB at its cells (as relight computes it) with the cells' directions."""
     ds = ltmstore.open_store(store)
-    assert "ltm_cb" not in ds  # a chroma-invariant store: RGB from the chroma ratios
     plane = ds.attrs["acquisition"]["plane"]
     half = 0.85 * min(np.ptp(plane["r"]), np.ptp(plane["s"])) / 2
     lights = np.random.default_rng(7).uniform(-half, half, size=(10, 2)) + [
         np.mean(plane["r"]), np.mean(plane["s"])]
     cells = np.array([(r, s) for r in ds.r.values for s in ds.s.values])
-    rgb = to_rgb(ds.ltm.load(), ds.chroma.load()).transpose("r", "s", "y", "x", "color")
+    if "ltm_cb" in ds:  # a colour LTM
+        rgb = xr.concat(rgb_from_ycbcr(ds.ltm.load(), ds.ltm_cb.load(), ds.ltm_cr.load()),
+                        dim="color")
+    else:  # chroma ratios
+        rgb = to_rgb(ds.ltm.load(), ds.chroma.load())
+    rgb = rgb.transpose("r", "s", "y", "x", "color")
     return (directions(lights, plane["height"]), ltmstore.relight(ds, lights).values,
             directions(cells, plane["height"]), rgb.values.reshape(len(cells), *rgb.shape[2:]))
 
