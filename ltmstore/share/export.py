@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from ltmstore.core.errors import LtmError
 from ltmstore.share import bases, fit, hsh_rti, ptm, relight_web
 from ltmstore.share.atomic import atomic_output, check_output
@@ -69,24 +71,31 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
     """
     _check(fmt, order, basis, color, quality)
     check_output(out, overwrite)
-    values = light_samples(store)
-    directions = values.directions
-    white = fit.exposure(values)
-    kind = basis if fmt == "relight" else fmt
-    terms = (bases.relight_ptm_terms(directions) if fmt == "relight" and basis == "ptm"
-             else bases.ptm_terms(directions) if kind == "ptm"
-             else bases.hsh_terms(directions, WEB_HSH_ORDER if fmt == "relight" else order))
+    samples = light_samples(store)
+    white = fit.exposure(samples)
+    design = _design(fmt, basis, order, samples.directions)
     with atomic_output(out, overwrite=overwrite, folder=fmt == "relight") as tmp:
         if fmt == "ptm" and color == "lrgb":
-            coef, colour = fit.fit_lrgb(values, terms, white)
+            coef, colour = fit.fit_lrgb(samples, design, white)
             ptm.write_lrgb(tmp, 255 * coef, colour)
         elif fmt == "ptm":
-            ptm.write_rgb(tmp, 255 * fit.fit_rgb(values, terms, white))
+            ptm.write_rgb(tmp, 255 * fit.fit_rgb(samples, design, white))
         elif fmt == "hsh":
-            hsh_rti.write(tmp, fit.fit_rgb(values, terms, white))
+            hsh_rti.write(tmp, fit.fit_rgb(samples, design, white))
         else:
-            relight_web.write(tmp, fit.fit_rgb(values, terms, white), basis, quality=quality)
-    return {"path": os.fspath(out), "format": fmt, "basis": kind, "color": color,
-            "terms": int(terms.shape[1]), "width": values.shape[1],
-            "height": values.shape[0], "directions": int(len(directions)),
+            relight_web.write(tmp, fit.fit_rgb(samples, design, white), basis, quality=quality)
+    return {"path": os.fspath(out), "format": fmt, "basis": basis if fmt == "relight" else fmt,
+            "color": color, "terms": int(design.shape[1]), "width": samples.shape[1],
+            "height": samples.shape[0], "directions": int(len(samples.directions)),
             "white": white}
+
+
+def _design(fmt: str, basis: str, order: int, directions: np.ndarray) -> np.ndarray:
+    """The basis matrix ``(M, terms)`` of the format, in its coefficient order."""
+    if fmt == "ptm":
+        return bases.ptm_terms(directions)
+    if fmt == "hsh":
+        return bases.hsh_terms(directions, order)
+    if basis == "ptm":
+        return bases.relight_ptm_terms(directions)
+    return bases.hsh_terms(directions, WEB_HSH_ORDER)

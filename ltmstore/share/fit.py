@@ -66,10 +66,10 @@ def fit_rgb(samples: LightSamples, basis: np.ndarray, white: float) -> np.ndarra
     -------
     ndarray of float32, shape ``(y, x, B, 3)``, in display units (``[0, 1]`` scale).
     """
-    pinv = solver(basis)
+    inverse = solver(basis)
     out = np.empty((*samples.shape, basis.shape[1], 3), np.float32)
     for rows, block in _blocks(samples):
-        out[rows] = np.einsum("bm,yxmc->yxbc", pinv, display(block, white), optimize=True)
+        out[rows] = np.einsum("bm,yxmc->yxbc", inverse, display(block, white), optimize=True)
     return out
 
 
@@ -86,7 +86,7 @@ def fit_lrgb(samples: LightSamples, basis: np.ndarray,
     coefficients : ndarray of float32, shape ``(y, x, B)``, display units.
     colour : ndarray of float32, shape ``(y, x, 3)``, in ``[0, 1]``.
     """
-    pinv = solver(basis)
+    inverse = solver(basis)
     coef = np.empty((*samples.shape, basis.shape[1]), np.float32)
     colour = np.empty((*samples.shape, 3), np.float32)
     for rows, block in _blocks(samples):
@@ -95,6 +95,6 @@ def fit_lrgb(samples: LightSamples, basis: np.ndarray,
         peak = mean.max(axis=-1, keepdims=True)
         n = np.where(peak > 0, mean / np.where(peak > 0, peak, 1), 1.0)
         lum = np.einsum("yxmc,yxc->yxm", d, n, optimize=True) / np.sum(n * n, axis=-1)[..., None]
-        coef[rows] = np.einsum("bm,yxm->yxb", pinv, lum, optimize=True)
+        coef[rows] = np.einsum("bm,yxm->yxb", inverse, lum, optimize=True)
         colour[rows] = n
     return coef, colour
