@@ -26,7 +26,7 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ltm`` parser with every command group registered."""
-    from ltmstore.cli import archive, capture, pipeline
+    from ltmstore.cli import archive, capture, pipeline, share
 
     parser = Parser(
         prog="ltm", description="Relightable photographs from handheld light transport "
@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=Parser)
-    for group in (pipeline, capture, archive):
+    for group in (pipeline, capture, archive, share):
         group.register(sub)
     return parser
 
