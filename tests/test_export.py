@@ -27,6 +27,7 @@ import pytest
 import xarray as xr
 import zarr
 from PIL import Image
+from pipeline_helpers import run_ltm
 
 import ltmstore
 from ltmstore.core.dims import rgb_from_ycbcr
@@ -34,7 +35,6 @@ from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.share.export import export
 from ltmstore.stages.relight import to_rgb
-from tests.pipeline_helpers import run_ltm
 
 
 def directions(positions: np.ndarray, height: float) -> np.ndarray:
@@ -278,7 +278,7 @@ def test_cli_export(small_store, tmp_path):
     assert again.stderr.strip().startswith("ltm: error:") and "\n" not in again.stderr.strip()
 
 
-if __name__ == "__main__":  # python -m tests.test_export STORE: the PSNR table for any store
+if __name__ == "__main__":  # python tests/test_export.py STORE: the PSNR table for any store
     with tempfile.TemporaryDirectory() as tmp:
         for name in CASES:
             values = measure(Path(sys.argv[1]), Path(tmp), name)
