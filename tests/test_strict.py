@@ -10,7 +10,7 @@ import subprocess
 import numpy as np
 import pytest
 import zarr
-from ingest_helpers import PLANE, H, W, write_pose_file
+from ingest_helpers import PLANE, H, W, make_acquisition, write_pose_file
 from pipeline_helpers import BIN, free_port, run_ltm
 
 from ltmstore.core.cluster import dask_client
@@ -83,3 +83,14 @@ def test_a_closed_pipe_is_no_traceback(small_store):
     stderr = proc.stderr.read()
     assert proc.wait(timeout=60) in (0, 128 + signal.SIGPIPE), stderr
     assert stderr == "", stderr
+
+
+@pytest.mark.parametrize("value", ["1_0", "\u0661"])
+def test_ingest_names_a_pose_value_float_would_take(tmp_path, value):
+    folder = make_acquisition(tmp_path / "acq", n=3)
+    text = (folder / "poses.csv").read_text().splitlines()
+    text[2] = f"{text[2].split(',')[0]},{value},0,0.5"
+    (folder / "poses.csv").write_text("\n".join(text) + "\n")
+    proc = run_ltm("ingest", folder, tmp_path / "s.zarr")
+    only_error_line(proc, "poses.csv line 3", f"r = '{value}'")
+    assert not (tmp_path / "s.zarr").exists()
