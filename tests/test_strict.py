@@ -3,6 +3,7 @@ is refused with exactly one ``ltm: error:`` line and exit status 2, never a trac
 
 from __future__ import annotations
 
+import re
 import shutil
 import signal
 import subprocess
@@ -94,3 +95,16 @@ def test_ingest_names_a_pose_value_float_would_take(tmp_path, value):
     proc = run_ltm("ingest", folder, tmp_path / "s.zarr")
     only_error_line(proc, "poses.csv line 3", f"r = '{value}'")
     assert not (tmp_path / "s.zarr").exists()
+
+
+def test_an_absurd_lattice_is_refused_naming_one_that_works(small_store, tmp_path,
+                                                            dask_cluster):
+    """1000 x 1000 cells for a 32 x 32 px capture of 262 observed cells: K/M 0.0003."""
+    store = shutil.copytree(small_store, tmp_path / "store.zarr")
+    before = open_store(store)["ltm"].values
+    proc = run_ltm("reconstruct", store, "--overwrite", "--lattice", "1000x1000", "--scheduler",
+                   dask_cluster.scheduler_address, timeout=120)
+    only_error_line(proc, "lattice 1000x1000 gives K/M 0.0003", "below 0.02", "--force")
+    suggested = re.search(r"--lattice (\d+)x(\d+) gives K/M (\S+) ", proc.stderr)
+    assert suggested and float(suggested[3]) >= 0.29, proc.stderr
+    np.testing.assert_array_equal(open_store(store)["ltm"].values, before)
