@@ -11,6 +11,9 @@ from contextlib import contextmanager
 from pathlib import Path
 
 BIN = Path(sys.executable).parent
+# `dask scheduler` and `dask worker` on loopback only: without --dashboard-address their HTTP
+# servers (health, metrics) listen on 0.0.0.0 even with --no-dashboard.
+LOOPBACK = ["--host", "127.0.0.1", "--no-dashboard", "--dashboard-address", "127.0.0.1:0"]
 
 
 def free_port() -> int:
@@ -25,14 +28,12 @@ def dask_processes(n_workers: int = 2):
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    procs = [subprocess.Popen([BIN / "dask", "scheduler", "--host", "127.0.0.1", "--port",
-                               str(port), "--no-dashboard"], env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    procs = [subprocess.Popen([BIN / "dask", "scheduler", "--port", str(port), *LOOPBACK],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
         for _ in range(n_workers):
             procs.append(subprocess.Popen(
-                [BIN / "dask", "worker", address, "--nthreads", "1", "--no-dashboard",
-                 "--host", "127.0.0.1"], env=env,
+                [BIN / "dask", "worker", address, "--nthreads", "1", *LOOPBACK], env=env,
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         from distributed import Client
 
