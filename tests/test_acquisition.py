@@ -256,3 +256,20 @@ def test_acquisition_json_may_not_link_out_of_the_folder(edit_json, tmp_path):
     os.symlink(outside, folder / "acquisition.json")
     with pytest.raises(LtmError, match="'acquisition.json' leaves the folder"):
         load_acquisition(folder)
+
+
+def test_sha256_reads_the_whole_file(tmp_path):
+    """Inputs larger than the read block (1 MiB): a change after the first block changes the
+    hash (every test input used to be smaller, so hashing only the first block went unseen)."""
+    import hashlib
+
+    from ltmstore.capture.acquisition import sha256_file
+
+    path = tmp_path / "video.bin"
+    data = bytearray(np.random.default_rng(0).bytes(3 * 2**20 // 2))
+    path.write_bytes(data)
+    assert sha256_file(path) == hashlib.sha256(data).hexdigest()
+    before = sha256_file(path)
+    data[-1] ^= 1
+    path.write_bytes(data)
+    assert sha256_file(path) != before
