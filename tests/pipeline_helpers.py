@@ -57,3 +57,24 @@ def run_ltm(*args, timeout: float = 300) -> subprocess.CompletedProcess:
                           timeout=timeout)
     proc.seconds = time.perf_counter() - start
     return proc
+
+
+def tcp_listeners() -> dict[tuple[str, int], str]:
+    """Every TCP address this process and its descendants listen on, with the command line."""
+    import psutil
+
+    me = psutil.Process()
+    found = {}
+    for proc in [me, *me.children(recursive=True)]:
+        try:
+            for conn in proc.net_connections(kind="tcp"):
+                if conn.status == psutil.CONN_LISTEN:
+                    found[conn.laddr.ip, conn.laddr.port] = " ".join(proc.cmdline()[:3])
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            pass
+    return found
+
+
+def beyond_loopback(listeners: dict[tuple[str, int], str]) -> dict[tuple[str, int], str]:
+    """The listeners of :func:`tcp_listeners` that another machine could reach."""
+    return {addr: cmd for addr, cmd in listeners.items() if addr[0] not in ("127.0.0.1", "::1")}

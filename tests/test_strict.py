@@ -9,11 +9,17 @@ import signal
 import subprocess
 
 import numpy as np
-import psutil
 import pytest
 import zarr
 from ingest_helpers import PLANE, H, W, make_acquisition, write_pose_file
-from pipeline_helpers import BIN, dask_processes, free_port, run_ltm
+from pipeline_helpers import (
+    BIN,
+    beyond_loopback,
+    dask_processes,
+    free_port,
+    run_ltm,
+    tcp_listeners,
+)
 
 from ltmstore.core.cluster import dask_client
 from ltmstore.core.errors import LtmError
@@ -111,25 +117,10 @@ def test_an_absurd_lattice_is_refused_naming_one_that_works(small_store, tmp_pat
     np.testing.assert_array_equal(open_store(store)["ltm"].values, before)
 
 
-def tcp_listeners() -> dict[tuple[str, int], str]:
-    """Every TCP address this process and its descendants listen on, with the process name."""
-    me = psutil.Process()
-    found = {}
-    for proc in [me, *me.children(recursive=True)]:
-        try:
-            for conn in proc.net_connections(kind="tcp"):
-                if conn.status == psutil.CONN_LISTEN:
-                    found[conn.laddr.ip, conn.laddr.port] = " ".join(proc.cmdline()[:3])
-        except (psutil.NoSuchProcess, psutil.AccessDenied):
-            pass
-    return found
-
-
 def test_nothing_started_listens_beyond_loopback(dask_cluster, prefect_harness):
     """The session's LocalCluster and Prefect server, the library's own LocalCluster and the
     suite's `dask scheduler` / `dask worker` processes (HTTP servers included)."""
     with dask_client(n_workers=1), dask_processes(1):
         found = tcp_listeners()
     assert len({name for name in found.values() if "dask" in name}) >= 2, found
-    beyond = {addr: name for addr, name in found.items() if addr[0] not in ("127.0.0.1", "::1")}
-    assert not beyond, beyond
+    assert not beyond_loopback(found), found
