@@ -13,8 +13,6 @@ from ltmstore.core.errors import LtmError
 
 # One BLAS/FFT thread per worker process: the parallelism is across pixel tiles.
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-
-
 SCHEDULER_TIMEOUT_S = 10.0  # an unreachable scheduler fails within this many seconds
 
 

@@ -50,7 +50,7 @@ from ltmstore.stages.resample import (
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
 # A lattice given by the user that leaves K/M below this is refused unless forced: the solve
-# grows with M while all but a few cells are extrapolated (a 1000 x 1000 lattice: K/M 0.0008).
+# grows with M while all but a few cells are guessed (1000 x 1000 on a test capture: K/M 0.0003).
 MIN_RATIO = 0.02
 
 
