@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import zarr
-from pipeline_helpers import BIN, free_port
+from pipeline_helpers import BIN, LOOPBACK, free_port
 
 from ltmstore.archive import ArchiveParams
 from ltmstore.core.store import STAGE_VARIABLES, STAGES_ATTR
@@ -80,11 +80,11 @@ def dask_cluster_processes(n_workers: int = 2):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "env": env,
              "start_new_session": True}
-    procs = [subprocess.Popen([BIN / "dask", "scheduler", "--host", "127.0.0.1", "--port",
-                               str(port), "--no-dashboard"], **quiet)]
+    procs = [subprocess.Popen([BIN / "dask", "scheduler", "--port", str(port), *LOOPBACK],
+                              **quiet)]
     try:
         workers = [subprocess.Popen([BIN / "dask", "worker", address, "--nthreads", "1",
-                                     "--no-dashboard", "--host", "127.0.0.1"], **quiet)
+                                     *LOOPBACK], **quiet)
                    for _ in range(n_workers)]
         procs += workers
         with Client(address, timeout=60) as client:

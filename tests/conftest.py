@@ -30,7 +30,7 @@ def dask_cluster():
     from ltmstore.core.cluster import WORKER_ENV
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None, env=WORKER_ENV) as cluster:
+                      dashboard_address="127.0.0.1:0", env=WORKER_ENV) as cluster:
         yield cluster
 
 

@@ -11,6 +11,9 @@ from contextlib import contextmanager
 from pathlib import Path
 
 BIN = Path(sys.executable).parent
+# `dask scheduler` and `dask worker` on loopback only: without --dashboard-address their HTTP
+# servers (health, metrics) listen on 0.0.0.0 even with --no-dashboard.
+LOOPBACK = ["--host", "127.0.0.1", "--no-dashboard", "--dashboard-address", "127.0.0.1:0"]
 
 
 def free_port() -> int:
@@ -25,14 +28,12 @@ def dask_processes(n_workers: int = 2):
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    procs = [subprocess.Popen([BIN / "dask", "scheduler", "--host", "127.0.0.1", "--port",
-                               str(port), "--no-dashboard"], env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    procs = [subprocess.Popen([BIN / "dask", "scheduler", "--port", str(port), *LOOPBACK],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
         for _ in range(n_workers):
             procs.append(subprocess.Popen(
-                [BIN / "dask", "worker", address, "--nthreads", "1", "--no-dashboard",
-                 "--host", "127.0.0.1"], env=env,
+                [BIN / "dask", "worker", address, "--nthreads", "1", *LOOPBACK], env=env,
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         from distributed import Client
 
@@ -56,3 +57,24 @@ def run_ltm(*args, timeout: float = 300) -> subprocess.CompletedProcess:
                           timeout=timeout)
     proc.seconds = time.perf_counter() - start
     return proc
+
+
+def tcp_listeners() -> dict[tuple[str, int], str]:
+    """Every TCP address this process and its descendants listen on, with the command line."""
+    import psutil
+
+    me = psutil.Process()
+    found = {}
+    for proc in [me, *me.children(recursive=True)]:
+        try:
+            for conn in proc.net_connections(kind="tcp"):
+                if conn.status == psutil.CONN_LISTEN:
+                    found[conn.laddr.ip, conn.laddr.port] = " ".join(proc.cmdline()[:3])
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            pass
+    return found
+
+
+def beyond_loopback(listeners: dict[tuple[str, int], str]) -> dict[tuple[str, int], str]:
+    """The listeners of :func:`tcp_listeners` that another machine could reach."""
+    return {addr: cmd for addr, cmd in listeners.items() if addr[0] not in ("127.0.0.1", "::1")}

@@ -205,3 +205,71 @@ def test_poses_not_text(tmp_path):
 def test_poses_min_samples(tmp_path):
     with pytest.raises(LtmError, match=r"2 pose sample\(s\); expected at least 3"):
         load_poses(write(tmp_path, "t,r,s,z\n0,0,0,1\n1,0,0,1\n"), min_samples=3)
+
+
+# --- strict inputs (issue 14) ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("value", ["1_0", "\u0661", "\u0661.\u0665", "1e_5", "0x10", "\u00bd"])
+def test_pose_values_are_ascii_decimals(tmp_path, value):
+    """``float()`` takes underscores and other scripts' digits (here Arabic-Indic); no
+    tracker writes them, so they are refused with the file, line and value."""
+    path = write(tmp_path, f"t,r,s,z\n0,0,0,1\n1,{value},0,1\n")
+    with pytest.raises(LtmError, match=f"{path} line 3: r = '{value}' is not a finite number"):
+        load_poses(path)
+
+
+def test_ordinary_decimals_are_read(tmp_path):
+    poses = load_poses(write(tmp_path, "t,r,s,z\n0,-.5,+1.,1E-3\n 2 ,0.25,3e+0,1\n"))
+    np.testing.assert_array_equal(poses.r, [-0.5, 0.25])
+    np.testing.assert_array_equal(poses.z, [1e-3, 1])
+
+
+def test_a_bom_in_poses_is_dropped(tmp_path):
+    path = tmp_path / "poses.csv"
+    path.write_bytes(b"\xef\xbb\xbft,r,s,z\r\n0,0.1,0,1\r\n1,0.2,0,1\r\n")
+    np.testing.assert_array_equal(load_poses(path).r, [0.1, 0.2])
+
+
+@pytest.mark.parametrize("plane", [
+    {"r": [-0.5, 0.5], "s": [-0.5, 0.5], "height": 0.5, "tilt": 3},
+    {"r": ["-0.5", 0.5], "s": [-0.5, 0.5], "height": 0.5},
+    {"r": [-0.5, 0.5], "s": [-0.5, 0.5], "height": "0.5"},
+    {"r": [-0.5, 0.5, 0.7], "s": [-0.5, 0.5], "height": 0.5},
+    {"r": [-0.5, 0.5], "s": [-0.5, 0.5], "height": True},
+    {"r": [-0.5, 0.5], "s": [-0.5, 0.5], "height": 0.5, "unit": 1},
+])
+def test_plane_fields_are_numbers_and_nothing_else(edit_json, plane):
+    with pytest.raises(LtmError, match="plane .* must look like .* no other key"):
+        load_acquisition(edit_json(plane=plane))
+
+
+def test_view_plane_values_are_numbers(edit_json):
+    with pytest.raises(LtmError, match="view_plane .* must look like"):
+        load_acquisition(edit_json(view_plane={"p": ["0", 1], "q": [0, 1]}))
+
+
+def test_acquisition_json_may_not_link_out_of_the_folder(edit_json, tmp_path):
+    folder = edit_json()
+    outside = tmp_path / "elsewhere.json"
+    (folder / "acquisition.json").rename(outside)
+    os.symlink(outside, folder / "acquisition.json")
+    with pytest.raises(LtmError, match="'acquisition.json' leaves the folder"):
+        load_acquisition(folder)
+
+
+def test_sha256_reads_the_whole_file(tmp_path):
+    """Inputs larger than the read block (1 MiB): a change after the first block changes the
+    hash (every test input used to be smaller, so hashing only the first block went unseen)."""
+    import hashlib
+
+    from ltmstore.capture.acquisition import sha256_file
+
+    path = tmp_path / "video.bin"
+    data = bytearray(np.random.default_rng(0).bytes(3 * 2**20 // 2))
+    path.write_bytes(data)
+    assert sha256_file(path) == hashlib.sha256(data).hexdigest()
+    before = sha256_file(path)
+    data[-1] ^= 1
+    path.write_bytes(data)
+    assert sha256_file(path) != before

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 
 import pytest
+import zarr
 from archive_helpers import ARGS, PARAMS, build_archive, make_good_store, tree_digest
 from pipeline_helpers import run_ltm
 
 from ltmstore.archive import STATE_FILE, ArchiveParams, archive_status
 from ltmstore.core.provenance import software
+from ltmstore.core.store import open_group
 
 
 @pytest.fixture(scope="module")
@@ -22,6 +25,10 @@ def archive(tmp_path, small_acquisition, good_store):
     root = tmp_path / "archive"
     build_archive(root, small_acquisition, good_store)
     return root
+
+
+def file_bytes(folder) -> int:
+    return sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
 
 
 def statuses(root) -> dict[str, str]:
@@ -37,8 +44,12 @@ def test_status_lists_new_stale_failed_and_up_to_date(archive):
     assert "made by 'ltmstore 0.0.1'" in entries["b"]["reason"]
     assert "acquisition.json is not valid JSON" in entries["d"]["reason"]
     assert "leaves the archive root" in entries["e"]["reason"]
-    assert entries["a"]["store_bytes"] > 0 and entries["a"]["acquisition_bytes"] > 0
-    assert entries["a"]["timings"]["solve_s"] > 0 and entries["a"]["summary"]["sampling_ratio"]
+    a = entries["a"]
+    assert a["store_bytes"] == file_bytes(archive / "a.zarr")
+    assert a["acquisition_bytes"] == file_bytes(archive / "a")
+    recorded = open_group(archive / "a.zarr").attrs["stages"]["reconstruct"]
+    assert a["timings"]["solve_s"] == recorded["timings"]["solve_s"]
+    assert a["summary"]["sampling_ratio"] == pytest.approx(0.486, rel=0.05)  # measured 70 / 144
     table = run_ltm("archive", "status", archive, *ARGS).stdout
     assert "up to date" in table and "stale" in table and "K/M" in table
 
@@ -148,3 +159,21 @@ def test_a_failed_reprocess_keeps_the_previous_good_store(archive):
     assert tree_digest(archive / "b.zarr") == before
     assert not [p.name for p in archive.iterdir() if p.name.startswith(".b.zarr")]
     assert statuses(archive)["b"] == "stale"  # the old store stays, reason: inputs changed
+
+
+def test_a_change_after_the_first_mib_of_an_input_makes_it_stale(archive):
+    """An input larger than 1 MiB whose last bytes change is stale: hashing reads it all."""
+    poses = archive / "a" / "poses.csv"
+    text = poses.read_text()
+    last = float(text.splitlines()[-1].split(",")[0])
+    text += "".join(f"{last + 1 + i / 100:.2f},0,0,0.5\n" for i in range(110_000))
+    poses.write_text(text)
+    assert poses.stat().st_size > 1.5 * 2**20
+    group = zarr.open_group(str(archive / "a.zarr"), mode="r+")  # as if ingested from it
+    acquisition = dict(group.attrs["acquisition"])
+    acquisition["sha256"] = {**acquisition["sha256"],
+                             "poses": hashlib.sha256(poses.read_bytes()).hexdigest()}
+    group.attrs["acquisition"] = acquisition
+    assert statuses(archive)["a"] == "up to date"
+    poses.write_text(text[:-2] + "7\n")  # the last row's z: 0.5 -> 0.7
+    assert statuses(archive)["a"] == "stale"

@@ -10,7 +10,7 @@ import time
 
 import pytest
 from archive_helpers import ARGS, PARAMS, build_archive, make_good_store, tree_digest
-from pipeline_helpers import BIN
+from pipeline_helpers import BIN, beyond_loopback, tcp_listeners
 
 from flows.archive import FLOW_NAME, _stop, prefect_server
 from ltmstore.archive import archive_status
@@ -77,6 +77,8 @@ def test_served_deployment_reprocesses_exactly_the_stale_acquisitions(tmp_path,
                 state = wait_for(lambda: (s := client.read_flow_run(run.id).state).is_final()
                                  and s, "the flow run", 240, serve)
                 assert state.is_completed(), (state, (tmp_path / "serve.log").read_text())
+                listeners = tcp_listeners()  # the server, `ltm archive serve` and its runner
+                assert not beyond_loopback(listeners), listeners
         finally:
             _stop(serve)
             log.close()

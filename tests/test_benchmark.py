@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from ltmstore.judge import benchmark
 
@@ -21,6 +22,11 @@ def test_a_tiny_sweep_writes_json_and_charts(tmp_path):
     assert methods == set(benchmark.METHODS)
     assert {r["method"] for r in records if r["lattice"] == 8} == {"cs"}
     assert all(np.isfinite(r["snr_db"]) and r["ms_per_pixel"] > 0 for r in records)
+    default = {r["lattice"]: r for r in records if r["method"] == "cs" and not r["params"]}
+    assert default[32]["sampling_ratio"] == pytest.approx(0.296, rel=0.05)  # measured 0.296
+    assert default[32]["snr_db"] > 21.0  # measured 26.21 dB (the sweep is seeded)
+    assert default[8]["snr_db"] > 18.5  # measured 23.06 dB
+    assert {r["pixels"] for r in records} == {16, 4}  # lars and svt on slow_pixels only
     result = benchmark.write(records, tmp_path, command="test")
     assert json.loads((tmp_path / "bench.json").read_text())["summary"]
     for path in result["charts"].values():

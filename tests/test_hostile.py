@@ -361,6 +361,9 @@ def test_the_command_line_shows_one_error_line(tmp_path, case):
 
 
 def test_report_the_case_count():
-    """Printed with ``-s``; the sum over a full run is at least 1,000."""
-    assert sum(CASES.values()) >= 1000
+    """Printed with ``-s``: the cases the generators above ran (1,410 measured), at least the
+    1,000 the audit asked for; skipped when only some of them ran (``-k``)."""
+    if set(HOSTILE_CASES) != set(CASES):
+        pytest.skip(f"only the {sorted(HOSTILE_CASES)} generators ran")
+    assert sum(HOSTILE_CASES.values()) >= sum(CASES.values()) >= 1000, HOSTILE_CASES
     print(f"\nhostile cases generated: {dict(HOSTILE_CASES)} = {sum(HOSTILE_CASES.values())}")

@@ -176,7 +176,10 @@ def test_provenance(acq_dir, ingested):
     assert record["complete"] is True
     assert record["rejected"] == EXPECTED["rejected"]
     assert record["z_tolerance"] == pytest.approx(Z_TOLERANCE_FRACTION * PLANE.height)
-    assert report["store"] == str(store) and report["seconds"] >= 0
+    assert report["store"] == str(store)
+    assert record["seconds"] == report["seconds"] and record["timings"] == report["timings"]
+    assert report["timings"]["frames"] > 0  # 60 frames decoded and written: milliseconds
+    assert report["seconds"] >= sum(report["timings"].values()) - 2e-3  # parts rounded to 1 ms
 
 
 def test_inputs_unchanged(acq_dir, ingested):

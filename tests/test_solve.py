@@ -69,7 +69,7 @@ def test_unknown_method_is_a_clear_error():
 
 
 def test_automatic_threshold_leaves_the_default_only_for_a_clear_gain():
-    from ltmstore.solve.select import choose_params
+    from ltmstore.solve.select import MARGIN, choose_params
 
     rng = np.random.default_rng(6)
     r, s = np.meshgrid(np.linspace(-1, 1, 16), np.linspace(-1, 1, 16), indexing="ij")
@@ -78,9 +78,25 @@ def test_automatic_threshold_leaves_the_default_only_for_a_clear_gain():
     geometry = Geometry.from_shape((16, 16))
     choice = choose_params(np.where(mask, clean, np.nan), geometry, "cs", params={})
     assert choice.params == {"lam_min": 1e-3} and len(choice.errors) == 3
-    noisy = clean + rng.normal(0, 0.05, clean.shape)
+    # Heavy noise: 3e-4 scores a little better than the default (measured 0.4364 against
+    # 0.4385, 0.5 %), less than MARGIN (2 %): the default stays.
+    noisy = clean + rng.normal(0, 0.2, clean.shape)
     choice = choose_params(np.where(mask, noisy, np.nan), geometry, "cs", params={})
-    errors = choice.errors
-    assert errors[choice.params["lam_min"]] <= errors[1e-3]
+    best = min(choice.errors.values())
+    assert best < choice.errors[1e-3] < (1 + MARGIN) * best, choice.errors
+    assert choice.params == {"lam_min": 1e-3}
     assert choose_params(np.where(mask, clean, np.nan), geometry, "cs",
                          params={"lam_min": 0.1}).params == {"lam_min": 0.1}
+
+
+def test_automatic_threshold_leaves_the_default_for_a_clear_gain(monkeypatch):
+    from types import SimpleNamespace
+
+    from ltmstore.solve import select
+
+    scores = {3e-3: 0.5, 1e-3: 1.0, 3e-4: 0.99}
+    monkeypatch.setattr(select, "heldout_error", lambda *a, params, **k: SimpleNamespace(
+        relative_error=scores[params["lam_min"]]))
+    samples = np.zeros((4, 8, 8))
+    choice = select.choose_params(samples, Geometry.from_shape((8, 8)), "cs", params={})
+    assert choice.params == {"lam_min": 3e-3} and choice.errors == scores

@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +28,10 @@ POSE_COLUMNS = ("t", "r", "s", "z")
 VIEW_COLUMNS = ("p", "q")
 MIN_POSES = 2
 MAX_JSON_BYTES = 1024 * 1024  # acquisition.json is a few hundred bytes
+PLANE_KEYS = {"r", "s", "height", "unit"}
+# A number as written in a CSV file: ASCII digits only (float() also takes "1_0" and other
+# scripts' digits, which no pose tracker writes).
+DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
 
 
 @dataclass(frozen=True)
@@ -187,6 +192,7 @@ def load_acquisition(folder: str | os.PathLike) -> Acquisition:
     if not folder.is_dir():
         raise LtmError(f"acquisition folder {str(folder)!r} does not exist or is not a folder")
     meta_path = folder / "acquisition.json"
+    resolve_inside(folder, meta_path.name, "acquisition file")  # a link may not leave it either
     meta = _read_json(meta_path)
     where = str(meta_path)
     missing = [k for k in REQUIRED_KEYS if k not in meta]
@@ -239,9 +245,12 @@ def _existing_file(folder: Path, name: object, what: str) -> Path:
 
 
 def _plane(value: object, where: str) -> Plane:
-    if not isinstance(value, dict):
+    if not (isinstance(value, dict) and PLANE_KEYS - {"unit"} <= set(value) <= PLANE_KEYS
+            and all(_is_range(value[k]) for k in "rs") and _is_number(value["height"])
+            and isinstance(value.get("unit", "m"), str)):
         raise LtmError(f"{where}: plane {value!r} must look like "
-                       "{'r': [min, max], 's': [min, max], 'height': h}")
+                       "{'r': [min, max], 's': [min, max], 'height': h[, 'unit': 'm']} with "
+                       "numbers (not strings) and no other key")
     try:
         plane = Plane.from_json(value)
     except LtmError as exc:
@@ -253,6 +262,16 @@ def _plane(value: object, where: str) -> Plane:
     return plane
 
 
+def _is_number(value: object) -> bool:
+    """A JSON number (not a boolean, not a string)."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _is_range(value: object) -> bool:
+    """A JSON ``[min, max]`` of numbers."""
+    return isinstance(value, list) and len(value) == 2 and all(map(_is_number, value))
+
+
 def _time_offset(value: object, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise LtmError(f"{where}: time_offset {value!r} must be a finite number of seconds")
@@ -262,10 +281,9 @@ def _time_offset(value: object, where: str) -> float:
 def _view_plane(value: object, where: str) -> dict | None:
     if value is None:
         return None
-    try:
+    ranges = None
+    if isinstance(value, dict) and all(_is_range(value.get(k)) for k in VIEW_COLUMNS):
         ranges = {k: [float(value[k][0]), float(value[k][1])] for k in VIEW_COLUMNS}
-    except (KeyError, TypeError, IndexError, ValueError):
-        ranges = None
     if ranges is None or not all(
         math.isfinite(lo) and math.isfinite(hi) and lo < hi for lo, hi in ranges.values()
     ):
@@ -314,7 +332,7 @@ def _read_csv(path: Path) -> tuple[list[str], list[int], list[list[float]]]:
     """Header, file line numbers and finite values of every non-blank row."""
     expected = [",".join(POSE_COLUMNS), ",".join(POSE_COLUMNS + VIEW_COLUMNS)]
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:  # a BOM is dropped
             reader = csv.reader(fh)
             header = [h.strip() for h in next(reader, [])]
             if ",".join(header) not in expected:
@@ -338,12 +356,9 @@ def _parse_row(path: Path, line: int, header: list[str], row: list[str]) -> list
                        f"({','.join(header)})")
     values = []
     for name, text in zip(header, row, strict=True):
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
+        value = float(text) if DECIMAL.fullmatch(text.strip()) else math.nan
         if not math.isfinite(value):
             raise LtmError(f"{str(path)} line {line}: {name} = {text.strip()!r} is not a finite "
-                           "number")
+                           "number (ASCII decimal digits, e.g. -0.25 or 1e-3)")
         values.append(value)
     return values

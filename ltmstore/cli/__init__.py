@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 
 from ltmstore.core.errors import LtmError
@@ -48,6 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
+        sys.stdout.flush()  # a closed pipe (`ltm info STORE | head -1`) shows up here
+    except BrokenPipeError:
+        return quiet_broken_pipe()
     except LtmError as exc:
         print(f"ltm: error: {exc}", file=sys.stderr)
         return 2
@@ -55,6 +59,15 @@ def main(argv: list[str] | None = None) -> int:
         print("ltm: interrupted", file=sys.stderr)
         return 130
     return 0
+
+
+def quiet_broken_pipe() -> int:
+    """The reader of stdout went away: send what is left to /dev/null (so that the exit's own
+    flush does not complain) and exit as a shell's pipeline expects (128 + SIGPIPE)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 128 + signal.SIGPIPE
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ from ltmstore.core.errors import LtmError
 def register(sub) -> None:
     """Add the pipeline's commands to the ``ltm`` subparsers ``sub``."""
     from ltmstore.solve import DEFAULT_METHOD, METHODS
+    from ltmstore.stages.reconstruct import MIN_RATIO, TARGET_RATIO
     from ltmstore.synthetic.scenes import SCENES
 
     p = sub.add_parser("demo", help="simulate, ingest, reconstruct, relight and report",
@@ -66,8 +67,13 @@ def register(sub) -> None:
                        "pixel's LTF by compressive sensing, over pixel tiles on Dask.")
     p.add_argument("store")
     grid = p.add_mutually_exclusive_group()
-    grid.add_argument("--lattice", help="RxS cells over the plane, e.g. 32x32")
+    grid.add_argument("--lattice", help="RxS cells over the plane, e.g. 32x32 (default: the "
+                      f"finest lattice whose K/M reaches {TARGET_RATIO}, the paper's ratio)")
     grid.add_argument("--delta-rs", type=number, help="cell size in plane units")
+    p.add_argument("--force", action="store_true",
+                   help=f"run a --lattice or --delta-rs whose K/M (observed cells / cells) is "
+                   f"below {MIN_RATIO}; refused otherwise, naming the lattice that reaches "
+                   f"{TARGET_RATIO}")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS),
                    help="solver (default: %(default)s; lars is the slow per-pixel reference)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
@@ -168,7 +174,7 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
     info = reconstruct(a.store, scheduler=a.scheduler, lattice=lattice, delta_rs=a.delta_rs,
                        method=a.method, auto=not a.no_auto, tile=a.tile,
                        color={"auto": None, "on": True, "off": False}[a.color],
-                       overwrite=a.overwrite)
+                       overwrite=a.overwrite, force=a.force)
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
           f"path density {info['path_density']:.1f}/unit  method {info['method']}  "
           f"resample {info['timings']['resample_s']:.1f} s  "

@@ -13,11 +13,12 @@ from ltmstore.core.errors import LtmError
 
 # One BLAS/FFT thread per worker process: the parallelism is across pixel tiles.
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+SCHEDULER_TIMEOUT_S = 10.0  # an unreachable scheduler fails within this many seconds
 
 
 @contextmanager
 def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
-                timeout: float = 30) -> Iterator[Client]:
+                timeout: float = SCHEDULER_TIMEOUT_S) -> Iterator[Client]:
     """A :class:`distributed.Client` for the run, closed afterwards.
 
     Parameters
@@ -26,12 +27,13 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
         Address of a running Dask scheduler (``tcp://host:8786``). Without it a
         :class:`~distributed.LocalCluster` of single-threaded worker processes is started
         (one per core, at most 4) and closed at the end.
+    n_workers : int, optional
+        Workers of the local cluster (default: one per core, at most 4).
+    timeout : float
+        Seconds to wait for ``scheduler`` before giving up.
     """
     if scheduler:
-        try:
-            client = Client(scheduler, timeout=timeout)
-        except (OSError, TimeoutError) as exc:
-            raise LtmError(f"cannot reach Dask scheduler {scheduler!r}: {exc}") from exc
+        client = _connect(scheduler, timeout)
         with client:
             yield client
         return
@@ -44,3 +46,20 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
                       silence_logs=logging.CRITICAL
                       ) as cluster, Client(cluster) as client:
         yield client
+
+
+def _connect(scheduler: str, timeout: float) -> Client:
+    """A client of the scheduler at ``scheduler``, or one :class:`LtmError` line naming it."""
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        parse_host_port(parse_address(scheduler)[1])
+    except ValueError as exc:
+        raise LtmError(f"--scheduler {scheduler!r} is not a Dask scheduler address ({exc}); "
+                       "expected tcp://HOST:PORT, e.g. tcp://127.0.0.1:8786") from None
+    try:
+        return Client(scheduler, timeout=timeout)
+    except Exception as exc:  # noqa: BLE001 - whatever answers there, it is not a usable scheduler
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise LtmError(f"cannot reach Dask scheduler {scheduler!r} within {timeout:g} s: "
+                       f"{reason}") from None

@@ -161,7 +161,15 @@ def open_group(path: str | os.PathLike | Store, *, mode: str = "r") -> zarr.Grou
     path = Path(path)
     if not (path / "zarr.json").is_file():
         raise LtmError(f"store {str(path)!r} does not exist or is not a Zarr v3 store")
-    return zarr.open_group(str(path), mode=mode, zarr_format=3)
+    try:
+        group = zarr.open_group(str(path), mode=mode, zarr_format=3)
+    except (ValueError, KeyError, TypeError, zarr.errors.BaseZarrError) as exc:
+        raise LtmError(f"store {str(path)!r} is not a readable Zarr v3 group: "
+                       f"{' '.join(str(exc).split()) or type(exc).__name__}") from exc
+    if STAGES_ATTR not in group.attrs:
+        raise LtmError(f"store {str(path)!r} is a Zarr v3 group but not an ltmstore store (no "
+                       f"{STAGES_ATTR!r} attribute); make one with ltm ingest or ltm simulate")
+    return group
 
 
 def write_coord(group: zarr.Group, name: str, values: np.ndarray, **attrs) -> None:

@@ -154,15 +154,50 @@ def _open_pair(store, truth) -> tuple[xr.DataArray, xr.DataArray]:
         if LTM not in ds:
             raise LtmError(f"{name} {str(path)!r} has no complete ltm")
     a, b = est[LTM], ref[LTM]
-    for dim in b.dims:
-        if a.sizes.get(dim) != b.sizes[dim] or not np.allclose(a[dim], b[dim]):
-            raise LtmError(f"lattices differ along {dim!r}: store {a.sizes.get(dim)} cells, "
-                           f"truth {b.sizes[dim]}; reconstruct with the truth's --lattice")
+    if set(a.dims) != set(b.dims) or any(a.sizes[d] != b.sizes[d] for d in b.dims[:2]):
+        raise LtmError(f"store ltm {dict(a.sizes)} and truth ltm {dict(b.sizes)} must have the "
+                       "same axes and the same image size")
     return a, b
 
 
+def _same_cells(a: xr.DataArray, b: xr.DataArray, dim: str) -> bool:
+    return a.sizes[dim] == b.sizes[dim] and bool(np.allclose(a[dim], b[dim]))
+
+
+def interpolation_weights(centres: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``(len(points), len(centres))`` weights of linear interpolation between cell centres,
+    clamped at the first and last centre (as :mod:`ltmstore.stages.relight` places a light)."""
+    n = len(centres)
+    weights = np.zeros((len(points), n))
+    if n == 1:
+        weights[:, 0] = 1.0
+        return weights
+    pos = np.interp(points, centres, np.arange(n))
+    i0 = np.minimum(np.floor(pos).astype(int), n - 2)
+    rows = np.arange(len(points))
+    weights[rows, i0] = 1 - (pos - i0)
+    weights[rows, i0 + 1] = pos - i0
+    return weights
+
+
+def at_cells(estimate: xr.DataArray, truth: xr.DataArray) -> xr.DataArray:
+    """``estimate`` at the lattice cells of ``truth``: linear along every lattice axis that
+    differs (bilinear in ``(r, s)`` and in ``(p, q)``, as relight interpolates); lazy."""
+    for dim in truth.dims[2:]:
+        if _same_cells(estimate, truth, dim):
+            continue
+        weights = xr.DataArray(interpolation_weights(estimate[dim].values, truth[dim].values),
+                               dims=("cell", dim))
+        estimate = (xr.dot(estimate, weights, dim=dim).rename(cell=dim)
+                    .assign_coords({dim: truth[dim].values}))
+    return estimate.transpose(*truth.dims).astype(np.float32)
+
+
 def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -> dict:
-    """A reconstructed store against a ground-truth store on the same lattice.
+    """A reconstructed store against a ground-truth store, at the truth's lattice cells.
+
+    A store reconstructed on another lattice (the automatic one, say) is interpolated at the
+    truth's cell centres (:func:`at_cells`), as relight would render those lights.
 
     Parameters
     ----------
@@ -177,9 +212,13 @@ def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -
         ``snr_y_db`` (the whole LTM), ``psnr_db`` of images relit at five lattice cells (centre
         and near the corners) with their ``cells`` and ``psnr_db_median``, and the median and
         maximum of the error maps: ``mean_abs_error_median``, ``mean_abs_error_max``,
-        ``var_abs_error_median``, ``var_abs_error_max`` (plus ``maps_png`` when written).
+        ``var_abs_error_median``, ``var_abs_error_max`` (plus ``maps_png`` when written);
+        ``interpolated_from``: the store's lattice shape, when it was not the truth's.
     """
     a, b = _open_pair(store, truth)
+    interpolated = not all(_same_cells(a, b, dim) for dim in b.dims[2:])
+    lattice = [a.sizes[dim] for dim in b.dims[2:]]
+    a = at_cells(a, b)
     n, m = a.sizes["r"], a.sizes["s"]
     cells = [(n // 2, m // 2), (n // 4, m // 4), (3 * n // 4, m // 4), (n // 4, 3 * m // 4),
              (3 * n // 4, 3 * m // 4)]
@@ -188,6 +227,8 @@ def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -
     maps = _maps_dataset(mean, var, b)
     out = {"snr_y_db": _db(num, den), "psnr_db_median": float(np.median(psnr)),
            "psnr_db": psnr, "cells": cells, **summarise_maps(maps)}
+    if interpolated:
+        out["interpolated_from"] = lattice
     if maps_png is not None:
         plot_error_maps(maps, maps_png, title=f"absolute error, SNR_Y {out['snr_y_db']:.2f} dB")
         out["maps_png"] = os.fspath(maps_png)

@@ -45,6 +45,8 @@ def top_svd(matrix: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     """The ``k`` largest singular triplets of a matrix, descending (ARPACK when ``k`` is small
     against the matrix, else a dense SVD)."""
     small = min(matrix.shape)
+    if not matrix.any():  # all zero (a black video): ARPACK would refuse its zero start vector
+        return np.zeros((matrix.shape[0], k)), np.zeros(k), np.zeros((k, matrix.shape[1]))
     if k < small // 4 and small > 32:
         from scipy.sparse.linalg import svds  # imported here: slow, rarely needed
 

@@ -49,6 +49,9 @@ from ltmstore.stages.resample import (
 
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
+# A lattice given by the user that leaves K/M below this is refused unless forced: the solve
+# grows with M while all but a few cells are guessed (1000 x 1000 on a test capture: K/M 0.0003).
+MIN_RATIO = 0.02
 
 
 @dataclass(frozen=True)
@@ -173,7 +176,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                 lattice: tuple[int, int] | None = None, delta_rs: float | None = None,
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
                 color: bool | None = None, tile: int = 32, overwrite: bool = False,
-                resume: bool = True, progress: bool = True) -> dict:
+                resume: bool = True, force: bool = False, progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store.
 
     A store without a complete ``ltm`` is written in place (an interrupted run of the same
@@ -211,6 +214,10 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         When an earlier run of the same parameters and software was interrupted (stage
         ``reconstruct`` incomplete, its samples complete), solve only the tiles it did not
         finish (``tiles_solved`` counts them, ``tiles_resumed`` the ones kept).
+    force : bool
+        Run a ``lattice`` or ``delta_rs`` whose sampling ratio ``K/M`` is below
+        :data:`MIN_RATIO` (refused otherwise, naming the lattice that reaches
+        :data:`TARGET_RATIO`).
 
     Returns
     -------
@@ -234,7 +241,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
                        "ingest it again with this version")
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
-               auto=auto, color=color, tile=tile, progress=progress, resume=resume)
+               auto=auto, color=color, tile=tile, progress=progress, resume=resume, force=force)
     try:
         if not revise:
             return _on_cluster(path, client, scheduler, run)
@@ -268,12 +275,23 @@ def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: 
         "software": soft["version"]}, sort_keys=True, default=str))
 
 
-def _pick_lattice(plane: Plane, r, s, valid, lattice, delta_rs) -> tuple[Lattice, str]:
-    if lattice is not None:
-        return Lattice.from_plane(plane, lattice), "user"
-    if delta_rs is not None:
-        return Lattice.from_delta(plane, delta_rs), "user"
+def _pick_lattice(plane: Plane, r, s, valid, *, shape, delta) -> tuple[Lattice, str]:
+    if shape is not None:
+        return Lattice.from_plane(plane, shape), "user"
+    if delta is not None:
+        return Lattice.from_delta(plane, delta), "user"
     return choose_lattice(plane, r, s, valid), "automatic"
+
+
+def _too_sparse(lattice: Lattice, binning: Binning, automatic: Lattice, ratio: float) -> str:
+    """Why a lattice with a sampling ratio below :data:`MIN_RATIO` is refused."""
+    def name(lat: Lattice) -> str:
+        return "x".join(map(str, lat.shape))
+
+    return (f"lattice {name(lattice)} gives K/M {binning.ratio:.4f} ({binning.k} of "
+            f"{binning.m} cells observed), below {MIN_RATIO}: almost every cell would be "
+            f"guessed; --lattice {name(automatic)} gives K/M {ratio:.2f} (the automatic "
+            f"lattice, aiming at the paper's {TARGET_RATIO}); pass --force to run it anyway")
 
 
 def _resumable(group: zarr.Group, key: dict, plan: TilePlan, names: list[str],
@@ -297,18 +315,23 @@ def tiles_name(variable: str) -> str:
 
 def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
                  params: dict, auto: bool, color: bool, tile: int, progress: bool,
-                 resume: bool) -> dict:
+                 resume: bool, force: bool) -> dict:
     plane = Plane.from_json(group.attrs["acquisition"]["plane"])
     r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     timings = {}
     start = time.perf_counter()
     positions = view_positions(group, r, s)  # (r, s), or (r, s, p, q) in 6D
-    lat, chosen = (_pick_lattice(plane, r, s, valid, lattice, delta_rs) if len(positions) == 2
-                   else lattice_6d(plane, group.attrs["acquisition"]["view_plane"], positions,
-                                   valid, shape=lattice, delta=delta_rs))
+    pick = (partial(_pick_lattice, plane, r, s, valid) if len(positions) == 2
+            else partial(lattice_6d, plane, group.attrs["acquisition"]["view_plane"], positions,
+                         valid))
+    lat, chosen = pick(shape=lattice, delta=delta_rs)
     binning = bin_positions(lat, positions, valid)
     if binning.k == 0:
         raise LtmError(f"no valid frame falls on the {lat.shape} lattice")
+    if binning.ratio < MIN_RATIO and chosen == "user" and not force:
+        automatic = pick(shape=None, delta=None)[0]
+        raise LtmError(_too_sparse(lat, binning, automatic,
+                                   bin_positions(automatic, positions, valid).ratio))
     frames = da.from_zarr(group["frames"])
     plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile)
     key = run_key(lattice=lattice, delta_rs=delta_rs, method=method, params=params, auto=auto,
