@@ -103,7 +103,8 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
                     time_offset=acq.time_offset, view_plane=acq.view_plane)
     hashes = hashes or _sha256(acq)
     hashed = time.perf_counter()
-    with VideoReader(acq.video) as video, new_store(store, overwrite=overwrite) as group:
+    with VideoReader(acq.video) as video, new_store(
+            store, overwrite=overwrite, inputs=(acq.folder, acq.video, acq.poses)) as group:
         begin_stage(group, STAGE)
         sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames, rig=rig)
         bar = tqdm(video, total=video.frame_count, disable=not progress, unit="frame",

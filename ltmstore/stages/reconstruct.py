@@ -9,6 +9,7 @@ solves, and writes its own shard, so a tile is the unit of progress and of failu
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import asdict, dataclass
 from functools import partial
@@ -222,6 +223,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     if int(tile) != tile or tile < 1:
         raise LtmError(f"--tile {tile!r} must be a positive whole number of pixels")
     get_method(method)
+    path = os.path.abspath(path)  # Dask workers resolve a relative path in their own folder
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
     st.check_writable(path)
@@ -236,11 +238,12 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
                auto=auto, color=color, tile=tile, progress=progress, resume=resume)
     try:
-        if not revise:
-            return _on_cluster(path, client, scheduler, run)
-        # a good ltm exists: build the new one on a linked copy, swapped in only when complete
-        with st.revised_store(path) as side:
-            return _on_cluster(side, client, scheduler, run)
+        with st.writing(path):
+            if not revise:
+                return _on_cluster(path, client, scheduler, run)
+            # a good ltm exists: build the new one on a linked copy, swapped in when complete
+            with st.revised_store(path) as side:
+                return _on_cluster(side, client, scheduler, run)
     except OSError as exc:  # a full disk, a store made read-only during the run
         kept = ("the previous ltm is untouched" if revise
                 else "its reconstruct stage stays incomplete")
