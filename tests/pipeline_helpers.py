@@ -20,19 +20,20 @@ def free_port() -> int:
 
 
 @contextmanager
-def dask_processes(n_workers: int = 2):
-    """A `dask scheduler` and `dask worker` processes on loopback; yields the address."""
+def dask_processes(n_workers: int = 2, cwd: Path | None = None):
+    """A `dask scheduler` and `dask worker` processes on loopback, started in ``cwd``; yields
+    the address."""
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     procs = [subprocess.Popen([BIN / "dask", "scheduler", "--host", "127.0.0.1", "--port",
-                               str(port), "--no-dashboard"], env=env,
+                               str(port), "--no-dashboard"], env=env, cwd=cwd,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
         for _ in range(n_workers):
             procs.append(subprocess.Popen(
                 [BIN / "dask", "worker", address, "--nthreads", "1", "--no-dashboard",
-                 "--host", "127.0.0.1"], env=env,
+                 "--host", "127.0.0.1"], env=env, cwd=cwd,
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         from distributed import Client
 

@@ -375,11 +375,40 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
+    for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
+        check_solved(group, name, plan, client)
     for name in [LTM, *CHROMA_LTM.values()]:
         if tiles_name(name) in group:
             del group[tiles_name(name)]
     st.complete_stage(group, "reconstruct", info)
     return info
+
+
+def check_solved(group: zarr.Group, name: str, plan: TilePlan, client: Client) -> None:
+    """Refuse to complete the stage unless the samples hold data and the LTM ``name`` is finite
+    wherever its samples are (a worker that wrote elsewhere, a lost shard).
+
+    Raises
+    ------
+    LtmError
+        Naming the first tile at fault.
+    """
+    samples_name = SAMPLES if name == LTM else name.replace(LTM, SAMPLES, 1)
+    samples = da.from_zarr(group[samples_name], chunks=plan.block)
+    ltm = da.from_zarr(group[name], chunks=plan.block)
+    lattice_axes = tuple(range(2, samples.ndim))
+    observed = da.isfinite(samples)
+    missing = (observed & ~da.isfinite(ltm)).any(axis=lattice_axes)
+    n_observed, missing = client.compute([observed.sum(), missing], sync=True)
+    where = f"store {str(getattr(group.store, 'root', group.store))!r}"
+    if n_observed == 0:
+        raise LtmError(f"{where}: {samples_name} holds no finite sample (did the Dask workers "
+                       "see the store?); the reconstruct stage stays incomplete")
+    if missing.any():
+        y, x = np.argwhere(missing)[0]
+        raise LtmError(f"{where}: {name} is not finite at {int(missing.sum())} observed pixels "
+                       f"(first in tile {y // plan.tile[0]}, {x // plan.tile[1]}); the "
+                       "reconstruct stage stays incomplete")
 
 
 def _mean_heldout(records: list[dict]) -> float | None:
