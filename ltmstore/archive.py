@@ -198,6 +198,8 @@ def _store_state(store: Path, params: ArchiveParams, hashes: dict | None) -> tup
         prov = store_summary(store)
     except LtmError as exc:
         return "failed", str(exc)
+    if prov.get("damaged"):
+        return "failed", f"store {str(store)!r} is damaged: {'; '.join(prov['damaged'][:3])}"
     if not prov["complete"]:
         stages = [n for n, e in prov["stages"].items() if not e.get("complete")]
         return "failed", (f"store {str(store)!r} is incomplete (stage(s) {stages} did not "

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 from ltmstore.core.errors import LtmError
 
@@ -26,7 +27,7 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ltm`` parser with every command group registered."""
-    from ltmstore.cli import archive, capture, pipeline
+    from ltmstore.cli import archive, capture, check, pipeline
 
     parser = Parser(
         prog="ltm", description="Relightable photographs from handheld light transport "
@@ -34,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=Parser)
-    for group in (pipeline, capture, archive):
+    for group in (pipeline, check, capture, archive):
         group.register(sub)
     return parser
 
@@ -46,15 +47,38 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg quiet: our errors say it
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
     args = build_parser().parse_args(argv)
+    _notes_in_one_line()
     try:
         args.func(args)
     except LtmError as exc:
         print(f"ltm: error: {exc}", file=sys.stderr)
         return 2
+    except ValueError as exc:  # a chunk that fails its checksum, found while reading
+        from ltmstore.cli.check import damaged_read
+
+        message = damaged_read(getattr(args, "store", None), exc)
+        if message is None:
+            raise
+        print(f"ltm: error: {message}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("ltm: interrupted", file=sys.stderr)
         return 130
     return 0
+
+
+def _notes_in_one_line() -> None:
+    """Print a store's :class:`~ltmstore.core.store.NoChecksumWarning` as ``ltm: note: ...``."""
+    from ltmstore.core.store import NoChecksumWarning
+
+    default = warnings.showwarning
+
+    def show(message, category, *rest, **kw):
+        if issubclass(category, NoChecksumWarning):
+            print(f"ltm: note: {message}", file=sys.stderr)
+        else:
+            default(message, category, *rest, **kw)
+    warnings.showwarning = show
 
 
 if __name__ == "__main__":

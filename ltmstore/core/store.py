@@ -12,7 +12,8 @@ import datetime as _dt
 import json
 import os
 import shutil
-from collections.abc import Iterator, Sequence
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -22,6 +23,7 @@ import zarr
 from zarr.abc.store import Store
 from zarr.storage import WrapperStore
 
+from ltmstore.core import checksum
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lock import locked
 from ltmstore.core.provenance import software, summary
@@ -226,7 +228,8 @@ def write_coord(group: zarr.Group, name: str, values: np.ndarray, **attrs) -> No
     values = np.asarray(values)
     dtype = str if values.dtype.kind in "UO" else values.dtype  # variable-length UTF-8
     arr = group.create_array(name, shape=values.shape, dtype=dtype, chunks=values.shape or (1,),
-                             dimension_names=(name,), overwrite=True)
+                             dimension_names=(name,), overwrite=True,
+                             compressors=checksum.COMPRESSORS, config=checksum.ARRAY_CONFIG)
     arr[...] = values
     arr.attrs.update(attrs)
 
@@ -255,6 +258,8 @@ def create_variable(
         fill_value=fill_value,
         dimension_names=tuple(dims),
         overwrite=True,
+        compressors=checksum.COMPRESSORS,
+        config=checksum.ARRAY_CONFIG,
     )
     if attrs:
         arr.attrs.update(attrs)
@@ -318,6 +323,11 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     stages that did not complete are dropped, so partial results are never served.
     """
     group = open_group(path)
+    if not isinstance(path, Store):
+        _refuse_damaged(Path(path), group)
+        if not checksummed(group):
+            warnings.warn(f"store {str(path)!r} {checksum.NO_CHECKSUMS}", NoChecksumWarning,
+                          stacklevel=2)
     ds = xr.open_zarr(path if isinstance(path, Store) else str(path), consolidated=False,
                       chunks={})
     incomplete = {
@@ -332,9 +342,70 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
 
 
 def store_summary(path: str | os.PathLike) -> dict:
-    """:func:`summary` of the store at ``path`` (a clear error when it is not a store)."""
+    """:func:`summary` of the store at ``path`` (a clear error when it is not a store).
+
+    A store with missing parts or unreadable metadata (:func:`damage`) is never ``complete``;
+    ``damaged`` lists what is wrong.
+    """
     try:
-        attrs = open_group(path).attrs.asdict()
+        group = open_group(path)
+        attrs = group.attrs.asdict()
     except (OSError, ValueError) as exc:
         raise LtmError(f"store {str(path)!r} cannot be read: {exc}") from exc
-    return {"store": str(path), **summary(attrs)}
+    info = {"store": str(path), **summary(attrs), "checksums": checksummed(group)}
+    damaged = damage(Path(path), group)
+    if damaged:
+        info.update(complete=False, damaged=damaged)
+    return info
+
+
+class NoChecksumWarning(UserWarning):
+    """A store written before chunks carried checksums: damage to its data cannot be found."""
+
+
+def checksummed(group: zarr.Group) -> bool:
+    """Whether the store's frames (the first array every store has) carry checksums."""
+    return "frames" not in group or checksum.has_checksums(group["frames"])
+
+
+def _complete_variables(group: zarr.Group) -> Callable[[str], bool]:
+    """Whether a variable belongs to no stage or to a completed one."""
+    done = {name for stage, entry in stages(group).items() if not entry.get("complete")
+            for name in STAGE_VARIABLES.get(stage, ())}
+    return lambda name: name not in done
+
+
+def damage(path: Path, group: zarr.Group) -> list[str]:
+    """Damage found without reading data (:func:`ltmstore.core.checksum.structure_damage`)."""
+    return checksum.structure_damage(path, complete=_complete_variables(group))
+
+
+def _refuse_damaged(path: Path, group: zarr.Group) -> None:
+    damaged = damage(path, group)
+    if damaged:
+        more = f" (and {len(damaged) - 1} more)" if len(damaged) > 1 else ""
+        raise LtmError(f"store {str(path)!r} is damaged: {damaged[0]}{more}; "
+                       f"run ltm check {str(path)!r}")
+
+
+def verify_store(path: str | os.PathLike, *, progress: bool = True) -> dict:
+    """Read every chunk of every variable of the store at ``path`` and check it.
+
+    Returns
+    -------
+    dict
+        ``store``, ``parts`` (how many were read), ``damaged`` (one line per damaged part) and
+        ``unchecked`` (variables written without checksums).
+    """
+    from tqdm.auto import tqdm
+
+    path = Path(path)
+    problem = checksum.group_damage(path) if (path / "zarr.json").exists() else None
+    if problem:
+        return {"store": str(path), "parts": 0, "damaged": [problem], "unchecked": []}
+    group = open_group(path)
+    with tqdm(total=checksum.parts(path), desc="check", unit="part",
+              disable=not progress) as bar:
+        damaged, unchecked = checksum.verify(path, complete=_complete_variables(group),
+                                             advance=bar.update)
+    return {"store": str(path), "parts": bar.n, "damaged": damaged, "unchecked": unchecked}
