@@ -22,6 +22,9 @@ from zarr.codecs import Crc32cCodec, ZstdCodec
 # Codec pipeline tail of every array; `config` of every array (see the module docstring).
 COMPRESSORS = (ZstdCodec(level=0), Crc32cCodec())
 ARRAY_CONFIG = {"write_empty_chunks": True}
+# An array reopened from its metadata (a tile's worker, a resumed run) takes Zarr's global
+# default, not the config it was created with: make the default write every chunk too.
+zarr.config.set({"array.write_empty_chunks": True})
 NO_CHECKSUMS = "carries no checksums (written before ltmstore checksummed its chunks)"
 
 

@@ -218,6 +218,10 @@ class FrameSink:
         if self._pending == self._chunk_frames:
             self._flush()
 
+    def lit(self) -> bool:
+        """Whether any valid frame so far holds light (a black video is no capture)."""
+        return bool(np.nanmax(self._sums[0], initial=0.0) > 0)
+
     def finish(self, t: np.ndarray) -> dict:
         """Write the last block, the ``t``, ``y``, ``x``, ``channel`` coordinates and chroma.
 
@@ -299,6 +303,9 @@ def finish_ingest(group: zarr.Group, sink: FrameSink, t: np.ndarray, lights: Lig
     if n_valid < MIN_VALID_FRAMES:
         raise LtmError(f"only {n_valid} of {sink.n} frames are valid (rejected: "
                        f"{lights.rejected()}); expected at least {MIN_VALID_FRAMES}")
+    if not sink.lit():
+        raise LtmError(f"all {n_valid} valid frames are black (no light reached the camera); "
+                       "expected a capture lit by the moving light")
     chroma = sink.finish(t)
     write_lights(group, lights)
     group.attrs[ACQUISITION_ATTR] = acquisition

@@ -138,6 +138,7 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     estimate = get_method(method)(batch, geometry, **choice.params)
     tile = samples.shape[:2]
     if EXPECTED_ERROR in out:  # the luminance pass also maps the confidence
+        estimate = np.maximum(estimate, 0)  # light transport is never negative (Cb, Cr may be)
         out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
         out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
             batch, geometry, method, params=choice.params, folds=1).reshape(tile)
