@@ -55,7 +55,8 @@ Z_TOLERANCE_FRACTION = 0.05
 
 def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: bool = False,
            z_tolerance: float | None = None, progress: bool = True,
-           chunk_frames: int = DEFAULT_CHUNK_FRAMES, hashes: dict[str, str] | None = None) -> dict:
+           chunk_frames: int = DEFAULT_CHUNK_FRAMES, hashes: dict[str, str] | None = None,
+           allow_dropped: bool = False) -> dict:
     """Decode an acquisition folder's video and poses into a new store.
 
     Parameters
@@ -76,6 +77,9 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     hashes : dict, optional
         ``Acquisition.sha256()`` of the inputs when the caller has just computed it (the
         archive does, to judge staleness); otherwise the inputs are hashed here.
+    allow_dropped : bool, default False
+        Leave out damaged or missing video frames (counted as ``dropped_frames``) instead of
+        failing (:class:`ltmstore.capture.video.VideoReader`).
 
     Returns
     -------
@@ -103,13 +107,14 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
                     time_offset=acq.time_offset, view_plane=acq.view_plane)
     hashes = hashes or _sha256(acq)
     hashed = time.perf_counter()
-    with VideoReader(acq.video) as video, new_store(
+    with VideoReader(acq.video, allow_dropped=allow_dropped) as video, new_store(
             store, overwrite=overwrite, inputs=(acq.folder, acq.video, acq.poses)) as group:
         begin_stage(group, STAGE)
         sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames, rig=rig)
-        bar = tqdm(video, total=video.frame_count, disable=not progress, unit="frame",
+        bar = tqdm(video.frames(), total=video.frame_count, disable=not progress, unit="frame",
                    desc="ingest")
-        for i, rgb in enumerate(bar):
+        index = []
+        for i, rgb in bar:
             at = light(np.array([i / video.fps]))
             view = None
             if rig is not None:
@@ -117,11 +122,13 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
                 view = (float(at.view["p"][0]), float(at.view["q"][0]))
             sink.add(rgb, bool(at.valid[0]), source=f"video {str(acq.video)!r} frame {i}",
                      view=view)
-        t = np.arange(sink.n) / video.fps
+            index.append(i)
+        t = np.array(index, dtype=np.float64) / video.fps
         timings = {"setup": round(hashed - started, 3),
                    "frames": round(time.perf_counter() - hashed, 3)}
         info = {"fps": video.fps, "frame_size": list(sink.shape), "z_tolerance": z_tolerance,
-                "time_offset": acq.time_offset, "chunk_frames": chunk_frames, "timings": timings}
+                "time_offset": acq.time_offset, "chunk_frames": chunk_frames, "timings": timings,
+                "dropped_frames": dict(video.dropped)}
         if rig is not None:
             info["registration"] = {
                 "camera_frame_size": [rig.intrinsics.height, rig.intrinsics.width],
