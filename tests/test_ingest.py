@@ -294,7 +294,7 @@ def broken(acq_dir, tmp_path):
 @pytest.mark.parametrize("content", [np.random.default_rng(1).bytes(5000), b"not a video\n",
                                      b""])
 def test_not_a_video(broken, tmp_path, content):
-    with pytest.raises(LtmError, match="video '.*video.mkv' cannot be decoded: OpenCV cannot "
+    with pytest.raises(LtmError, match="video '.*video.mkv' cannot be decoded: FFmpeg cannot "
                                        "open it"):
         ingest(broken(content), tmp_path / "s.zarr", progress=False)
     assert not (tmp_path / "s.zarr").exists()

@@ -58,7 +58,7 @@ class VideoReader:
             self._stream = self._container.streams.video[0]
         except (av.error.FFmpegError, OSError, IndexError):
             self._container = None
-            self._fail("it cannot be opened (not a video file, or an unsupported container "
+            self._fail("FFmpeg cannot open it (not a video file, or an unsupported container "
                        "or codec; expected e.g. FFV1 .mkv or mp4v .mp4)")
         rate = self._stream.average_rate or self._stream.guessed_rate
         self.fps = float(rate) if rate else float("nan")
