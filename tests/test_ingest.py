@@ -262,7 +262,8 @@ def test_too_few_valid_frames(tmp_path):
     folder = make_acquisition(tmp_path / "acq", extra={"plane": plane})
     store = tmp_path / "s.zarr"
     with pytest.raises(LtmError, match=r"only \d of 60 frames are valid \(rejected: .*"
-                                       r"'outside_bounds': \d+\}\); expected at least 8"):
+                                       r"'outside_bounds': \d+, 'occluded': 0\}\); "
+                                       r"expected at least 8"):
         ingest(folder, store, progress=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["acq"]
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -46,9 +47,11 @@ from ltmstore.stages.frames import (
     DEFAULT_CHUNK_FRAMES,
     STAGE,
     FrameSink,
+    Lights,
     finish_ingest,
     lights_at,
 )
+from ltmstore.stages.occlusion import occluded_frames
 
 Z_TOLERANCE_FRACTION = 0.05
 
@@ -134,9 +137,19 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
                 "camera_frame_size": [rig.intrinsics.height, rig.intrinsics.width],
                 "observed_fraction_mean": sink.observed[0] / max(sink.observed[1], 1)}
         provenance = _provenance(acq, hashes, video, sink, rig)
-        record = finish_ingest(group, sink, t, light(t), acquisition=provenance, info=info,
-                               started=started)
+        record = finish_ingest(group, sink, t, _judge_occlusion(light(t), sink, rig),
+                               acquisition=provenance, info=info, started=started)
     return {**record, "store": str(store)}
+
+
+def _judge_occlusion(lights: Lights, sink: FrameSink, rig: ViewRig | None) -> Lights:
+    """``lights`` with the occluded frames (:mod:`ltmstore.stages.occlusion`) rejected: 4D
+    captures (a moving camera B changes the brightness too, which the model does not hold)."""
+    if rig is not None or lights.view:
+        return lights
+    mask = occluded_frames(np.asarray(sink.brightness), lights.r, lights.s, lights.z,
+                           lights.valid)
+    return replace(lights, occluded=mask)
 
 
 def _sha256(acq: Acquisition) -> dict[str, str]:
