@@ -86,6 +86,21 @@ def test_a_second_writer_is_refused_in_one_line(acq, store):
         first.wait()
 
 
+def test_a_second_reconstruct_is_refused_in_one_line(store):
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from ltmstore.core.lock import locked\n"
+         "with locked(sys.argv[1]):\n print('locked', flush=True); time.sleep(60)",
+         str(store)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        one_line_error(run_ltm("reconstruct", store, "--lattice", "8x8"),
+                       f"is being written by process {holder.pid} on host")
+    finally:
+        holder.kill()
+        holder.wait()
+    assert "reconstruct" not in stages(open_group(store))
+
+
 def test_the_lock_of_a_dead_process_is_taken_over(acq, store):
     lock = store.parent / f".{store.name}.lock"
     lock.write_text(json.dumps({"pid": 999999, "host": "elsewhere"}))
