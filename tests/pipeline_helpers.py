@@ -57,3 +57,14 @@ def run_ltm(*args, timeout: float = 300) -> subprocess.CompletedProcess:
                           timeout=timeout)
     proc.seconds = time.perf_counter() - start
     return proc
+
+
+def ltm_here(capsys, *args) -> subprocess.CompletedProcess:
+    """Run ``ltm`` in this process (quicker than :func:`run_ltm` where no separate process is
+    under test); returns the same kind of result."""
+    from ltmstore.cli import main
+
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(["ltm", *map(str, args)], code, out, err)

@@ -8,7 +8,7 @@ import shutil
 import warnings
 
 import pytest
-from pipeline_helpers import run_ltm
+from pipeline_helpers import ltm_here, run_ltm
 
 from ltmstore.core import checksum
 from ltmstore.core.store import NoChecksumWarning, open_group, open_store, store_summary
@@ -55,7 +55,7 @@ def test_flipped_bytes_are_found_and_named(store):
     assert not (store.parent / "a.png").exists()
 
 
-def test_a_deleted_shard_is_damage(store):
+def test_a_deleted_shard_is_damage(store, capsys):
     shard = a_shard(store)
     shard.unlink()
     key = shard.relative_to(store).as_posix()
@@ -63,22 +63,22 @@ def test_a_deleted_shard_is_damage(store):
     assert info["complete"] is False and info["damaged"] == [f"{key} is missing"]
     one_line_error(run_ltm("relight", store, "--light", "0,0", "-o", store.parent / "a.png"),
                    f"is damaged: {key} is missing")
-    one_line_error(run_ltm("check", store), f"{key} is missing")
+    one_line_error(ltm_here(capsys, "check", store), f"{key} is missing")
 
 
-def test_broken_metadata_is_one_line(store):
+def test_broken_metadata_is_one_line(store, capsys):
     (store / "ltm" / "zarr.json").write_text('{"zarr_format": 3, "node_type": ')
-    info = json.loads(run_ltm("info", store).stdout)
+    info = json.loads(ltm_here(capsys, "info", store).stdout)
     assert info["complete"] is False
     assert info["damaged"] == ["ltm/zarr.json cannot be read (JSONDecodeError)"]
-    one_line_error(run_ltm("check", store), "ltm/zarr.json cannot be read")
+    one_line_error(ltm_here(capsys, "check", store), "ltm/zarr.json cannot be read")
     (store / "zarr.json").write_text("{")
     one_line_error(run_ltm("info", store), "zarr.json")
-    one_line_error(run_ltm("check", store), "zarr.json cannot be read")
+    one_line_error(ltm_here(capsys, "check", store), "zarr.json cannot be read")
 
 
 def test_a_store_without_checksums_opens_with_a_note(small_acquisition, tmp_path,
-                                                      monkeypatch):
+                                                      monkeypatch, capsys):
     monkeypatch.setattr(checksum, "COMPRESSORS", (checksum.ZstdCodec(level=0),))
     monkeypatch.setattr(checksum, "ARRAY_CONFIG", {})
     old = tmp_path / "old.zarr"
@@ -89,7 +89,7 @@ def test_a_store_without_checksums_opens_with_a_note(small_acquisition, tmp_path
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert store_summary(old)["checksums"] is False
-    proc = run_ltm("check", old)
+    proc = ltm_here(capsys, "check", old)
     assert proc.returncode == 0, proc.stderr
     assert "carries no checksums" in proc.stderr and "no damage" in proc.stdout
 

@@ -72,12 +72,15 @@ def _notes_in_one_line() -> None:
     from ltmstore.core.store import NoChecksumWarning
 
     default = warnings.showwarning
+    if getattr(default, "ltm_notes", False):
+        return
 
     def show(message, category, *rest, **kw):
         if issubclass(category, NoChecksumWarning):
             print(f"ltm: note: {message}", file=sys.stderr)
         else:
             default(message, category, *rest, **kw)
+    show.ltm_notes = True
     warnings.showwarning = show
 
 
