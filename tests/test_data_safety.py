@@ -17,7 +17,7 @@ from pipeline_helpers import BIN, ltm_here, run_ltm
 
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_group, stages
-from ltmstore.core.swap import PAUSE_ENV, journal_path, recover
+from ltmstore.core.swap import PAUSE_ENV, journal_path, recover, swap_in
 from ltmstore.stages.ingest import ingest
 
 
@@ -137,6 +137,22 @@ def test_a_kill_between_the_renames_is_finished_by_the_next_command(acq, store):
     assert info.returncode == 0, info.stderr
     assert json.loads(info.stdout)["stages"]["ingest"]["complete"] is True
     assert sorted(p.name for p in store.parent.iterdir()) == ["store.zarr"]
+
+
+def test_a_swap_is_flushed_to_disk(tmp_path, monkeypatch):
+    side, path = tmp_path / "side", tmp_path / "store"
+    (side / "a").mkdir(parents=True)
+    (side / "a" / "chunk").write_bytes(b"data")
+    flushed = []
+    real = os.fsync
+
+    def fsync(fd):
+        flushed.append(os.readlink(f"/proc/self/fd/{fd}"))
+        real(fd)
+    monkeypatch.setattr("ltmstore.core.swap.os.fsync", fsync)
+    swap_in(side, path)
+    assert {str(side / "a" / "chunk"), str(side / "a"), str(tmp_path)} <= set(flushed)
+    assert (path / "a" / "chunk").read_bytes() == b"data"
 
 
 def test_an_interrupted_swap_without_its_new_store_is_rolled_back(store, tmp_path):

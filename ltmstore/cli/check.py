@@ -23,7 +23,8 @@ def cmd_check(a: argparse.Namespace) -> None:
 
     report = verify_store(a.store)
     if report["unchecked"]:
-        print(f"ltm: note: {', '.join(report['unchecked'])} {NO_CHECKSUMS}", file=sys.stderr)
+        print(f"ltm: note: store {a.store!r} {NO_CHECKSUMS}: "
+              f"{', '.join(report['unchecked'])}", file=sys.stderr)
     for line in report["damaged"]:
         print(f"ltm: damaged: {a.store}/{line}", file=sys.stderr)
     if report["damaged"]:
