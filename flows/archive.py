@@ -24,7 +24,14 @@ from prefect.artifacts import create_table_artifact
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from flows.process import transient_io
-from ltmstore.archive import ArchiveParams, archive_status, record_runs, reprocess, summary_row
+from ltmstore.archive import (
+    ArchiveParams,
+    archive_lock,
+    archive_status,
+    record_runs,
+    reprocess,
+    summary_row,
+)
 from ltmstore.core.cluster import dask_client
 from ltmstore.core.errors import LtmError
 
@@ -69,17 +76,18 @@ def reprocess_archive(root: str, lattice: list[int] | None = None, delta_rs: flo
     if max_concurrent < 1:
         raise LtmError(f"max_concurrent {max_concurrent!r} must be a positive integer")
     params = _params(lattice, delta_rs, method, auto, tile)
-    entries = archive_status(root, params)
-    todo = [e for e in entries if e.status != "up to date"]
-    rows = [summary_row(e.name, "up to date", sampling_ratio=e.summary.get("sampling_ratio"))
-            for e in entries if e.status == "up to date"]
-    blocked = [e for e in todo if "leaves the archive root" in e.reason]
-    rows += [summary_row(e.name, "failed", reason=e.reason) for e in blocked]
-    todo = [e for e in todo if e not in blocked]
-    if todo:
-        with dask_client(scheduler) as client:
-            rows += _run_all(todo, params, client.scheduler.address, max_concurrent)
-    record_runs(root, [r for r in rows if r["status"] != "up to date"])
+    with archive_lock(root):  # one run per archive root
+        entries = archive_status(root, params)
+        todo = [e for e in entries if e.status != "up to date"]
+        rows = [summary_row(e.name, "up to date", sampling_ratio=e.summary.get("sampling_ratio"))
+                for e in entries if e.status == "up to date"]
+        blocked = [e for e in todo if "leaves the archive root" in e.reason]
+        rows += [summary_row(e.name, "failed", reason=e.reason) for e in blocked]
+        todo = [e for e in todo if e not in blocked]
+        if todo:
+            with dask_client(scheduler) as client:
+                rows += _run_all(todo, params, client.scheduler.address, max_concurrent)
+        record_runs(root, [r for r in rows if r["status"] != "up to date"])
     rows.sort(key=lambda r: r["acquisition"])
     create_table_artifact(table=rows, key=ARTIFACT_KEY,
                           description=f"reprocess-archive of {root}: "

@@ -27,11 +27,13 @@ from pathlib import Path
 
 from ltmstore.capture.acquisition import load_acquisition
 from ltmstore.core.errors import LtmError
+from ltmstore.core.lock import locked
 from ltmstore.core.provenance import software
 
 STORE_SUFFIX = ".zarr"
 NEXT_SUFFIX = ".next"
 STATE_FILE = ".ltm-archive.json"
+LOCK_FILE = ".ltm-archive.lock"
 STATUSES = ("new", "stale", "failed", "up to date")
 
 
@@ -182,6 +184,12 @@ def input_hashes(folder: Path) -> dict:
     return load_acquisition(folder).sha256()
 
 
+def archive_lock(root: str | os.PathLike):
+    """The archive's write lock (:func:`ltmstore.core.lock.locked`): one run per root."""
+    root = _root(root)
+    return locked(root, what="archive", file=root / LOCK_FILE)
+
+
 def _store_state(store: Path, params: ArchiveParams, hashes: dict | None) -> tuple[str, str]:
     """``(status, reason)`` of an existing store against the current software and params."""
     from ltmstore.core.store import store_summary
@@ -190,6 +198,8 @@ def _store_state(store: Path, params: ArchiveParams, hashes: dict | None) -> tup
         prov = store_summary(store)
     except LtmError as exc:
         return "failed", str(exc)
+    if prov.get("damaged"):
+        return "failed", f"store {str(store)!r} is damaged: {'; '.join(prov['damaged'][:3])}"
     if not prov["complete"]:
         stages = [n for n, e in prov["stages"].items() if not e.get("complete")]
         return "failed", (f"store {str(store)!r} is incomplete (stage(s) {stages} did not "
@@ -316,10 +326,11 @@ def _ingest_reusable(work: Path, hashes: dict) -> bool:
 
 def _swap(work: Path, store: Path) -> None:
     """Move the complete side store into place; the old store is removed only afterwards."""
-    from ltmstore.core.store import swap_in
+    from ltmstore.core.store import swap_in, writing
 
     try:
-        swap_in(work, store)
+        with writing(store):
+            swap_in(work, store)
     except OSError as exc:
         raise LtmError(f"cannot move the new store into {str(store)!r}: "
                        f"{exc.strerror or exc}") from exc

@@ -26,7 +26,8 @@ COLOURS = np.array([[0.8, 0.4, 0.2], [0.2, 0.5, 0.9]])  # linear RGB of the left
 POSE_T0, POSE_T1 = 0.49, 1.51
 Z_OUT = (0.995, 1.205)  # light 20 % above the plane between these times
 EXPECTED = {"n_frames": N, "n_valid": 19,
-            "rejected": {"beyond_poses": 29, "out_of_plane": 7, "outside_bounds": 5}}
+            "rejected": {"beyond_poses": 29, "out_of_plane": 7, "outside_bounds": 5,
+                         "occluded": 0}}
 
 
 def colour_map() -> np.ndarray:

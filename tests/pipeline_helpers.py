@@ -23,17 +23,19 @@ def free_port() -> int:
 
 
 @contextmanager
-def dask_processes(n_workers: int = 2):
-    """A `dask scheduler` and `dask worker` processes on loopback; yields the address."""
+def dask_processes(n_workers: int = 2, cwd: Path | None = None):
+    """A `dask scheduler` and `dask worker` processes on loopback, started in ``cwd``; yields
+    the address."""
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     procs = [subprocess.Popen([BIN / "dask", "scheduler", "--port", str(port), *LOOPBACK],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+                              env=env, cwd=cwd, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)]
     try:
         for _ in range(n_workers):
             procs.append(subprocess.Popen(
-                [BIN / "dask", "worker", address, "--nthreads", "1", *LOOPBACK], env=env,
+                [BIN / "dask", "worker", address, "--nthreads", "1", *LOOPBACK], env=env, cwd=cwd,
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         from distributed import Client
 
@@ -78,3 +80,14 @@ def tcp_listeners() -> dict[tuple[str, int], str]:
 def beyond_loopback(listeners: dict[tuple[str, int], str]) -> dict[tuple[str, int], str]:
     """The listeners of :func:`tcp_listeners` that another machine could reach."""
     return {addr: cmd for addr, cmd in listeners.items() if addr[0] not in ("127.0.0.1", "::1")}
+
+
+def ltm_here(capsys, *args) -> subprocess.CompletedProcess:
+    """Run ``ltm`` in this process (quicker than :func:`run_ltm` where no separate process is
+    under test); returns the same kind of result."""
+    from ltmstore.cli import main
+
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(["ltm", *map(str, args)], code, out, err)

@@ -265,7 +265,8 @@ def test_too_few_valid_frames(tmp_path):
     folder = make_acquisition(tmp_path / "acq", extra={"plane": plane})
     store = tmp_path / "s.zarr"
     with pytest.raises(LtmError, match=r"only \d of 60 frames are valid \(rejected: .*"
-                                       r"'outside_bounds': \d+\}\); expected at least 8"):
+                                       r"'outside_bounds': \d+, 'occluded': 0\}\); "
+                                       r"expected at least 8"):
         ingest(folder, store, progress=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["acq"]
 
@@ -297,7 +298,7 @@ def broken(acq_dir, tmp_path):
 @pytest.mark.parametrize("content", [np.random.default_rng(1).bytes(5000), b"not a video\n",
                                      b""])
 def test_not_a_video(broken, tmp_path, content):
-    with pytest.raises(LtmError, match="video '.*video.mkv' cannot be decoded: OpenCV cannot "
+    with pytest.raises(LtmError, match="video '.*video.mkv' cannot be decoded: FFmpeg cannot "
                                        "open it"):
         ingest(broken(content), tmp_path / "s.zarr", progress=False)
     assert not (tmp_path / "s.zarr").exists()

@@ -68,19 +68,28 @@ def test_an_unreachable_scheduler_fails_fast_naming_it():
             pass
 
 
-def test_svt_on_a_black_video_gives_a_black_ltm(tmp_path, dask_cluster):
-    """An all-zero matrix made ARPACK raise ("starting vector is zero"): a traceback."""
+def test_a_black_video_is_refused_before_any_solver(tmp_path):
+    """An all-black video made ``--method svt`` raise in ARPACK ("starting vector is zero"):
+    ingest now refuses it in one line, so no solver meets it."""
     folder = tmp_path / "black"
     folder.mkdir()
     write_video(folder / "video.mkv", [np.zeros((H, W, 3), np.uint8)] * 60)
     write_pose_file(folder / "poses.csv")
     write_acquisition_json(folder, video="video.mkv", plane=PLANE)
-    store = tmp_path / "black.zarr"
-    assert run_ltm("ingest", folder, store).returncode == 0
-    proc = run_ltm("reconstruct", store, "--method", "svt", "--lattice", "8x8", "--scheduler",
-                   dask_cluster.scheduler_address)
-    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
-    assert not open_store(store)["ltm"].values.any()
+    proc = run_ltm("ingest", folder, tmp_path / "black.zarr")
+    last = proc.stderr.strip().splitlines()[-1]  # after the progress bar
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert last.startswith("ltm: error: ") and "black" in last, proc.stderr
+
+
+def test_svt_on_an_all_zero_tile_gives_zeros():
+    """A black tile inside a lit capture reaches svt as an all-zero matrix: zeros, no raise."""
+    from ltmstore.solve import Geometry, get_method
+
+    samples = np.zeros((16, 8, 8))
+    samples[:, ::3, ::2] = np.nan
+    out = get_method("svt")(samples, Geometry.from_shape((8, 8)))
+    assert out.shape == samples.shape and not out.any()
 
 
 def test_a_closed_pipe_is_no_traceback(small_store):

@@ -1,17 +1,26 @@
-"""Decoding camera B's video: frames as 8-bit RGB, code values to linear light."""
+"""Decoding camera B's video: frames as 8-bit RGB, code values to linear light.
+
+Frames are decoded with PyAV (FFmpeg), which reports what OpenCV hides: a damaged packet (an FFV1
+slice whose CRC does not match, an MPEG-4 macroblock that cannot be parsed) is logged by the
+decoder, and a frame decoded from it, or from the frames after it up to the next key frame that
+predict from it, holds wrong values. Such frames, frames missing from the time stamps and a
+stream that ends before the frame count its container declares are errors; with
+``allow_dropped`` they are left out, counted (:attr:`VideoReader.dropped`) and reported.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
+import av
+import av.logging
 import numpy as np
 
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import decode
 
-# A video whose decoded frame count falls short of its header's by more than this is truncated.
-TRUNCATION_SLACK = (2, 0.02)  # frames, fraction of the declared count
+ALLOW_OPTION = "--allow-dropped-frames"
 
 
 def transfer_lut(transfer: str) -> np.ndarray:
@@ -21,57 +30,139 @@ def transfer_lut(transfer: str) -> np.ndarray:
 
 
 class VideoReader:
-    """Decode a video frame by frame with OpenCV, as a context manager yielding RGB frames.
+    """Decode a video frame by frame, as a context manager yielding RGB frames.
 
     Parameters
     ----------
     path : Path
         The video file.
+    allow_dropped : bool, default False
+        Leave out damaged and missing frames (counted in :attr:`dropped`) instead of failing.
 
     Attributes
     ----------
     fps : float
         Frames per second from the container.
     frame_count : int or None
-        The container's frame count, when it declares one (it may be approximate).
+        The frame count the container declares (or its duration times ``fps``), when it does.
+    dropped : dict
+        Frames left out so far, per reason (``damaged``, ``missing``).
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, allow_dropped: bool = False) -> None:
         self.path = path
-        self._cap = cv2.VideoCapture(str(path))
-        if not self._cap.isOpened():
-            self._fail("OpenCV cannot open it (not a video file, or an unsupported container "
+        self.allow_dropped = allow_dropped
+        self.dropped = {"damaged": 0, "missing": 0}
+        try:
+            self._container = av.open(str(path))
+            self._stream = self._container.streams.video[0]
+        except (av.error.FFmpegError, OSError, IndexError):
+            self._container = None
+            self._fail("FFmpeg cannot open it (not a video file, or an unsupported container "
                        "or codec; expected e.g. FFV1 .mkv or mp4v .mp4)")
-        self.fps = float(self._cap.get(cv2.CAP_PROP_FPS))
+        rate = self._stream.average_rate or self._stream.guessed_rate
+        self.fps = float(rate) if rate else float("nan")
         if not (np.isfinite(self.fps) and self.fps > 0):
             self._fail(f"its frame rate {self.fps!r} is not a positive number")
-        count = self._cap.get(cv2.CAP_PROP_FRAME_COUNT)
-        self.frame_count = int(count) if np.isfinite(count) and count > 0 else None
+        self.frame_count = self._declared_count()
+
+    def _declared_count(self) -> int | None:
+        stream = self._stream
+        if stream.frames:
+            return int(stream.frames)
+        if stream.duration is not None and stream.time_base is not None:
+            return round(float(stream.duration * stream.time_base) * self.fps)
+        if self._container.duration:
+            return round(self._container.duration / av.time_base * self.fps)
+        return None
 
     def __enter__(self) -> VideoReader:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._cap.release()
+        if self._container is not None:
+            self._container.close()
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for _, rgb in self.frames():
+            yield rgb
+
+    def frames(self) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield ``(index, rgb)``: the frame's number on the video's clock (its time is
+        ``index / fps``) and its ``(H, W, 3)`` uint8 RGB values; damaged or missing frames fail,
+        or are skipped with ``allow_dropped``."""
+        expected, damaged_until_key = 0, False
+        for index, frame, errors in self._decoded():
+            damaged_until_key = bool(errors) or (damaged_until_key and not frame.key_frame)
+            if index > expected:
+                self._drop("missing", index - expected, f"frames {expected} to {index - 1} are "
+                           "missing from its time stamps")
+            expected = max(expected, index + 1)
+            if damaged_until_key:
+                why = "; ".join(errors) or "it predicts from a damaged frame"
+                self._drop("damaged", 1, f"frame {index} is damaged ({why})")
+                continue
+            yield index, frame.to_ndarray(format="rgb24")
+        self._check_complete(expected)
+
+    def _decoded(self) -> Iterator[tuple[int, av.VideoFrame, list[str]]]:
+        """Decoded frames with their index and the decoder's error messages."""
+        level = av.logging.get_level()
+        av.logging.set_level(av.logging.ERROR)  # FFmpeg's messages reach the capture
+        try:
+            with av.logging.Capture() as logs:
+                yield from self._frames_logged(logs)
+        finally:
+            av.logging.set_level(level)
+
+    def _frames_logged(self, logs: list) -> Iterator[tuple[int, av.VideoFrame, list[str]]]:
+        start, base = self._stream.start_time or 0, self._stream.time_base
         n = 0
-        while True:
-            ok, bgr = self._cap.read()
-            if not ok or bgr is None:
-                break
-            n += 1
-            yield bgr[..., ::-1]
-        self._check_complete(n)
+        for packet in self._packets():
+            for frame in self._decode(packet, n):
+                errors = [f"{name}: {text.strip()}" for level, name, text in logs
+                          if level <= av.logging.ERROR]
+                logs.clear()
+                index = n if frame.pts is None else round(
+                    float((frame.pts - start) * base) * self.fps)
+                n += 1
+                yield index, frame, errors
+
+    def _packets(self) -> Iterator[av.Packet]:
+        """The stream's packets, ending at the first that cannot be read (a truncated file:
+        the frame count check names it)."""
+        try:
+            yield from self._container.demux(self._stream)
+        except av.error.FFmpegError:
+            return
+
+    def _decode(self, packet: av.Packet, n: int) -> list[av.VideoFrame]:
+        try:
+            return packet.decode()
+        except av.error.FFmpegError as exc:
+            self._drop("damaged", 1, f"the packet after frame {n} cannot be decoded ({exc})")
+            return []
 
     def _check_complete(self, n: int) -> None:
         if n == 0:
             self._fail("it yields no frames")
-        slack = max(TRUNCATION_SLACK[0], TRUNCATION_SLACK[1] * (self.frame_count or 0))
-        if self.frame_count is not None and n < self.frame_count - slack:
-            self._fail(f"it ends after {n} of the {self.frame_count} frames its header declares "
-                       "(truncated or corrupt file?)")
+        if self.frame_count is None:
+            if not self.allow_dropped:
+                self._fail("its container declares neither a frame count nor a duration "
+                           f"(damaged header?), so a truncation cannot be found; pass "
+                           f"{ALLOW_OPTION} to ingest what it holds")
+            return
+        if n < self.frame_count:
+            self._drop("missing", self.frame_count - n, f"it ends after {n} of the "
+                       f"{self.frame_count} frames its header declares (truncated or corrupt "
+                       "file?)")
+
+    def _drop(self, reason: str, count: int, why: str) -> None:
+        if not self.allow_dropped:
+            self._fail(f"{why}; pass {ALLOW_OPTION} to leave such frames out")
+        self.dropped[reason] += count
 
     def _fail(self, why: str) -> None:
-        self._cap.release()
+        if self._container is not None:
+            self._container.close()
         raise LtmError(f"video {str(self.path)!r} cannot be decoded: {why}")

@@ -12,6 +12,7 @@ import argparse
 import os
 import signal
 import sys
+import warnings
 
 from ltmstore.core.errors import LtmError
 
@@ -27,7 +28,7 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ltm`` parser with every command group registered."""
-    from ltmstore.cli import archive, capture, pipeline, share
+    from ltmstore.cli import archive, capture, check, pipeline, share
 
     parser = Parser(
         prog="ltm", description="Relightable photographs from handheld light transport "
@@ -35,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=Parser)
-    for group in (pipeline, capture, archive, share):
+    for group in (pipeline, check, share, capture, archive):
         group.register(sub)
     return parser
 
@@ -47,6 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg quiet: our errors say it
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
     args = build_parser().parse_args(argv)
+    _notes_in_one_line()
     try:
         args.func(args)
         sys.stdout.flush()  # a closed pipe (`ltm info STORE | head -1`) shows up here
@@ -54,6 +56,14 @@ def main(argv: list[str] | None = None) -> int:
         return quiet_broken_pipe()
     except LtmError as exc:
         print(f"ltm: error: {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:  # a chunk that fails its checksum, found while reading
+        from ltmstore.cli.check import damaged_read
+
+        message = damaged_read(getattr(args, "store", None), exc)
+        if message is None:
+            raise
+        print(f"ltm: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("ltm: interrupted", file=sys.stderr)
@@ -68,6 +78,23 @@ def quiet_broken_pipe() -> int:
     os.dup2(devnull, sys.stdout.fileno())
     os.close(devnull)
     return 128 + signal.SIGPIPE
+
+
+def _notes_in_one_line() -> None:
+    """Print a store's :class:`~ltmstore.core.store.NoChecksumWarning` as ``ltm: note: ...``."""
+    from ltmstore.core.store import NoChecksumWarning
+
+    default = warnings.showwarning
+    if getattr(default, "ltm_notes", False):
+        return
+
+    def show(message, category, *rest, **kw):
+        if issubclass(category, NoChecksumWarning):
+            print(f"ltm: note: {message}", file=sys.stderr)
+        else:
+            default(message, category, *rest, **kw)
+    show.ltm_notes = True
+    warnings.showwarning = show
 
 
 if __name__ == "__main__":

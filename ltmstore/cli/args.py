@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from ltmstore.core.errors import LtmError
 
 
@@ -33,7 +35,18 @@ def number(text: str) -> float:
 
 
 def print_json(obj) -> None:
-    print(json.dumps(obj, indent=2, default=str))
+    """Print ``obj`` as strict JSON: NaN and infinities become ``null``."""
+    print(json.dumps(_finite(obj), indent=2, default=str, allow_nan=False))
+
+
+def _finite(obj):
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float | np.floating) and not np.isfinite(obj):
+        return None
+    return obj
 
 
 def add_output(p: argparse.ArgumentParser, default: str, what: str) -> None:

@@ -50,6 +50,9 @@ def register(sub) -> None:
     p.add_argument("acquisition", help="folder with acquisition.json, video, poses.csv")
     p.add_argument("store", help="Zarr store to create")
     p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--allow-dropped-frames", action="store_true",
+                   help="leave out damaged or missing video frames (counted and reported) "
+                   "instead of failing")
     p.set_defaults(func=cmd_ingest)
 
     p = sub.add_parser("ingest-rti", help="classic RTI capture (images + .lp) -> store")
@@ -156,7 +159,8 @@ def cmd_simulate_raw(a: argparse.Namespace) -> None:
 def cmd_ingest(a: argparse.Namespace) -> None:
     from ltmstore.stages.ingest import ingest
 
-    print_json(ingest(a.acquisition, a.store, overwrite=a.overwrite))
+    print_json(ingest(a.acquisition, a.store, overwrite=a.overwrite,
+                      allow_dropped=a.allow_dropped_frames))
 
 
 def cmd_ingest_rti(a: argparse.Namespace) -> None:

@@ -61,13 +61,15 @@ def summary(attrs: dict) -> dict:
         ``complete`` (every recorded stage finished and ``reconstruct`` among them),
         ``software`` (of the last completed stage), ``inputs`` (source, file names, sha256),
         ``parameters`` (of the reconstruct stage: lattice, method, solver settings, the run
-        key), ``sampling`` (K, M, K/M, path density), ``timings`` (seconds per stage) and
-        ``stages`` (started/finished/complete per stage).
+        key), ``sampling`` (K, M, K/M, path density), ``frames`` (of ingest: how many, how
+        many valid, rejected per reason, e.g. ``occluded``, and dropped from a damaged video),
+        ``timings`` (seconds per stage) and ``stages`` (started/finished/complete per stage).
     """
     stages = dict(attrs.get("stages") or {})
     acquisition = dict(attrs.get("acquisition") or {})
     rec = stages.get("reconstruct") or {}
     res = stages.get("resample") or {}
+    ingest = stages.get("ingest") or {}
     timings = {}
     if "seconds" in (stages.get("ingest") or {}):
         timings["ingest_s"] = stages["ingest"]["seconds"]
@@ -85,6 +87,8 @@ def summary(attrs: dict) -> dict:
                                            "lattice", "lattice_choice", "plan") if k in rec},
         "sampling": {k: sampling[k] for k in ("K", "M", "sampling_ratio", "path_density")
                      if k in sampling},
+        "frames": {k: ingest[k] for k in ("n_frames", "n_valid", "rejected", "dropped_frames")
+                   if k in ingest},
         "timings": timings,
         "stages": {name: {k: e[k] for k in ("complete", "started", "finished", "software",
                                             "commit", "tiles_solved", "tiles_resumed")

@@ -9,9 +9,11 @@ interrupted stage never looks finished.
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 import shutil
-from collections.abc import Iterator, Sequence
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -21,8 +23,13 @@ import zarr
 from zarr.abc.store import Store
 from zarr.storage import WrapperStore
 
+from ltmstore.core import checksum
 from ltmstore.core.errors import LtmError
+from ltmstore.core.lock import locked
 from ltmstore.core.provenance import software, summary
+from ltmstore.core.swap import journal_path, recover, swap_in
+
+__all__ = ["swap_in"]  # re-exported: the archive swaps its stores in too
 
 STAGES_ATTR = "stages"
 # Which variables each stage writes (to hide the output of stages that did not complete).
@@ -40,51 +47,98 @@ def _now() -> str:
 
 
 @contextmanager
-def new_store(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[zarr.Group]:
+def new_store(path: str | os.PathLike, *, overwrite: bool = False,
+              inputs: Sequence[str | os.PathLike] = ()) -> Iterator[zarr.Group]:
     """Create a store at ``path`` atomically: build it beside, then move it into place.
 
-    Refuses an existing path unless ``overwrite``. If the body raises, nothing is left at
-    ``path`` and an existing store there is untouched.
+    Refuses an existing path unless ``overwrite``, and even then anything but a store made by
+    this program, or a path that holds one of ``inputs``. Holds the store's write lock
+    (:func:`ltmstore.core.lock.locked`) throughout; partial stores that dead processes left
+    beside it are removed first. If the body raises, nothing is left at ``path`` and an existing
+    store there is untouched.
     """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise LtmError(f"store {str(path)!r} already exists; pass --overwrite to replace it")
-    parent = path.parent if str(path.parent) else Path(".")
+    path = Path(os.path.abspath(path))
+    parent = path.parent
     if not parent.is_dir():
         raise LtmError(f"cannot create store {str(path)!r}: folder {str(parent)!r} does not exist")
     if not os.access(parent, os.W_OK):
         raise LtmError(f"cannot create store {str(path)!r}: folder {str(parent)!r} is not writable")
-    tmp = parent / f".{path.name}.partial-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
+    with locked(path):
+        recover(path)
+        _check_replaceable(path, overwrite=overwrite, inputs=inputs)
+        remove_leftovers(path)
+        tmp = parent / f".{path.name}.partial-{os.getpid()}"
+        try:
+            group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+            group.attrs[STAGES_ATTR] = {}
+            yield group
+            swap_in(tmp, path)
+        except OSError as exc:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}") from exc
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+
+
+def _check_replaceable(path: Path, *, overwrite: bool,
+                       inputs: Sequence[str | os.PathLike]) -> None:
+    """Refuse to build a store at ``path`` over anything that is not one of ours, or an input."""
+    for source in inputs:
+        source = Path(os.path.abspath(source))
+        if source == path or path in source.parents:
+            raise LtmError(f"store {str(path)!r} would replace the input {str(source)!r}; "
+                           "choose a store path outside the inputs")
+    if not (path.exists() or path.is_symlink()):
+        return
+    if not overwrite:
+        raise LtmError(f"store {str(path)!r} already exists; pass --overwrite to replace it")
+    if not is_ltm_store(path):
+        raise LtmError(f"{str(path)!r} exists and is not a store made by ltm; --overwrite "
+                       "replaces only such stores (remove it yourself if it must go)")
+
+
+def is_ltm_store(path: Path) -> bool:
+    """Whether ``path`` is a store folder this program made (a Zarr group with stage records)."""
     try:
-        group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
-        group.attrs[STAGES_ATTR] = {}
-        yield group
-        swap_in(tmp, path)
-    except OSError as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}") from exc
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        meta = json.loads((path / "zarr.json").read_text())
+        return (not path.is_symlink() and meta.get("node_type") == "group"
+                and STAGES_ATTR in meta.get("attributes", {}))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
-def swap_in(side: Path, path: Path) -> None:
-    """Move the complete store at ``side`` to ``path``.
+@contextmanager
+def writing(path: str | os.PathLike) -> Iterator[Path]:
+    """Hold the write lock of an existing store for the body, after finishing (or rolling back)
+    a swap a killed process left and removing dead processes' leftovers beside it."""
+    path = Path(os.path.abspath(path))
+    with locked(path):
+        recover(path)
+        remove_leftovers(path)
+        yield path
 
-    A store already at ``path`` is moved aside first, put back if the move fails and removed
-    only after it succeeded. Raises :class:`OSError` as the file system does.
-    """
-    old = path.parent / f".{path.name}.old-{os.getpid()}"
-    if path.exists():
-        path.rename(old)
-    try:
-        side.rename(path)
-    except OSError:
-        if old.exists() and not path.exists():
-            old.rename(path)
-        raise
-    shutil.rmtree(old, ignore_errors=True)
+
+def _recover_unlocked(path: Path) -> None:
+    """Before reading: finish a swap a killed process left, unless a live writer holds the
+    store (it finishes its own swap)."""
+    if journal_path(path).exists():
+        try:
+            with writing(path):
+                pass
+        except LtmError:
+            pass
+
+
+def remove_leftovers(path: Path) -> list[Path]:
+    """Remove the partial stores and set-aside old stores that killed processes left beside
+    ``path``. The caller holds the store's lock, so no live process is writing them."""
+    removed = []
+    for pattern in (f".{path.name}.partial-*", f".{path.name}.old-*"):
+        for leftover in path.parent.glob(pattern):
+            shutil.rmtree(leftover, ignore_errors=True)
+            removed.append(leftover)
+    return removed
 
 
 def revision_path(path: str | os.PathLike) -> Path:
@@ -159,13 +213,14 @@ def open_group(path: str | os.PathLike | Store, *, mode: str = "r") -> zarr.Grou
     if isinstance(path, Store):
         return zarr.open_group(store=path, mode=mode, zarr_format=3)
     path = Path(path)
+    _recover_unlocked(Path(os.path.abspath(path)))
     if not (path / "zarr.json").is_file():
         raise LtmError(f"store {str(path)!r} does not exist or is not a Zarr v3 store")
     try:
         group = zarr.open_group(str(path), mode=mode, zarr_format=3)
     except (ValueError, KeyError, TypeError, zarr.errors.BaseZarrError) as exc:
-        raise LtmError(f"store {str(path)!r} is not a readable Zarr v3 group: "
-                       f"{' '.join(str(exc).split()) or type(exc).__name__}") from exc
+        raise LtmError(f"store {str(path)!r} is damaged: {str(path / 'zarr.json')!r} cannot be "
+                       f"read ({' '.join(str(exc).split()) or type(exc).__name__})") from exc
     if STAGES_ATTR not in group.attrs:
         raise LtmError(f"store {str(path)!r} is a Zarr v3 group but not an ltmstore store (no "
                        f"{STAGES_ATTR!r} attribute); make one with ltm ingest or ltm simulate")
@@ -177,7 +232,8 @@ def write_coord(group: zarr.Group, name: str, values: np.ndarray, **attrs) -> No
     values = np.asarray(values)
     dtype = str if values.dtype.kind in "UO" else values.dtype  # variable-length UTF-8
     arr = group.create_array(name, shape=values.shape, dtype=dtype, chunks=values.shape or (1,),
-                             dimension_names=(name,), overwrite=True)
+                             dimension_names=(name,), overwrite=True,
+                             compressors=checksum.COMPRESSORS, config=checksum.ARRAY_CONFIG)
     arr[...] = values
     arr.attrs.update(attrs)
 
@@ -206,6 +262,8 @@ def create_variable(
         fill_value=fill_value,
         dimension_names=tuple(dims),
         overwrite=True,
+        compressors=checksum.COMPRESSORS,
+        config=checksum.ARRAY_CONFIG,
     )
     if attrs:
         arr.attrs.update(attrs)
@@ -269,6 +327,11 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     stages that did not complete are dropped, so partial results are never served.
     """
     group = open_group(path)
+    if not isinstance(path, Store):
+        _refuse_damaged(Path(path), group)
+        if not checksummed(group):
+            warnings.warn(f"store {str(path)!r} {checksum.NO_CHECKSUMS}", NoChecksumWarning,
+                          stacklevel=2)
     ds = xr.open_zarr(path if isinstance(path, Store) else str(path), consolidated=False,
                       chunks={})
     incomplete = {
@@ -283,9 +346,70 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
 
 
 def store_summary(path: str | os.PathLike) -> dict:
-    """:func:`summary` of the store at ``path`` (a clear error when it is not a store)."""
+    """:func:`summary` of the store at ``path`` (a clear error when it is not a store).
+
+    A store with missing parts or unreadable metadata (:func:`damage`) is never ``complete``;
+    ``damaged`` lists what is wrong.
+    """
     try:
-        attrs = open_group(path).attrs.asdict()
+        group = open_group(path)
+        attrs = group.attrs.asdict()
     except (OSError, ValueError) as exc:
         raise LtmError(f"store {str(path)!r} cannot be read: {exc}") from exc
-    return {"store": str(path), **summary(attrs)}
+    info = {"store": str(path), **summary(attrs), "checksums": checksummed(group)}
+    damaged = damage(Path(path), group)
+    if damaged:
+        info.update(complete=False, damaged=damaged)
+    return info
+
+
+class NoChecksumWarning(UserWarning):
+    """A store written before chunks carried checksums: damage to its data cannot be found."""
+
+
+def checksummed(group: zarr.Group) -> bool:
+    """Whether the store's frames (the first array every store has) carry checksums."""
+    return "frames" not in group or checksum.has_checksums(group["frames"])
+
+
+def _complete_variables(group: zarr.Group) -> Callable[[str], bool]:
+    """Whether a variable belongs to no stage or to a completed one."""
+    done = {name for stage, entry in stages(group).items() if not entry.get("complete")
+            for name in STAGE_VARIABLES.get(stage, ())}
+    return lambda name: name not in done
+
+
+def damage(path: Path, group: zarr.Group) -> list[str]:
+    """Damage found without reading data (:func:`ltmstore.core.checksum.structure_damage`)."""
+    return checksum.structure_damage(path, complete=_complete_variables(group))
+
+
+def _refuse_damaged(path: Path, group: zarr.Group) -> None:
+    damaged = damage(path, group)
+    if damaged:
+        more = f" (and {len(damaged) - 1} more)" if len(damaged) > 1 else ""
+        raise LtmError(f"store {str(path)!r} is damaged: {damaged[0]}{more}; "
+                       f"run ltm check {str(path)!r}")
+
+
+def verify_store(path: str | os.PathLike, *, progress: bool = True) -> dict:
+    """Read every chunk of every variable of the store at ``path`` and check it.
+
+    Returns
+    -------
+    dict
+        ``store``, ``parts`` (how many were read), ``damaged`` (one line per damaged part) and
+        ``unchecked`` (variables written without checksums).
+    """
+    from tqdm.auto import tqdm
+
+    path = Path(path)
+    problem = checksum.group_damage(path) if (path / "zarr.json").exists() else None
+    if problem:
+        return {"store": str(path), "parts": 0, "damaged": [problem], "unchecked": []}
+    group = open_group(path)
+    with tqdm(total=checksum.parts(path), desc="check", unit="part",
+              disable=not progress) as bar:
+        damaged, unchecked = checksum.verify(path, complete=_complete_variables(group),
+                                             advance=bar.update)
+    return {"store": str(path), "parts": bar.n, "damaged": damaged, "unchecked": unchecked}

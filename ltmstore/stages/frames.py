@@ -55,7 +55,9 @@ CHROMA_TOLERANCE = 0.05  # RMS colour error of a luminance-only LTM, relative to
 class Lights:
     """Light position per frame and the reason, if any, each frame is rejected.
 
-    The three rejection masks are exclusive: a frame counts under the first reason that applies.
+    The rejection masks are exclusive: a frame counts under the first reason that applies.
+    ``occluded`` (judged from the frames' brightness after the positions: see
+    :mod:`ltmstore.stages.occlusion`) is None where occlusion was not judged.
     """
 
     r: np.ndarray
@@ -65,6 +67,7 @@ class Lights:
     out_of_plane: np.ndarray
     outside_bounds: np.ndarray
     view: dict[str, np.ndarray] = field(default_factory=dict)
+    occluded: np.ndarray | None = None
 
     @classmethod
     def classify(cls, r: np.ndarray, s: np.ndarray, z: np.ndarray, *, plane: Plane,
@@ -101,13 +104,17 @@ class Lights:
 
     @property
     def valid(self) -> np.ndarray:
-        return ~(self.beyond_poses | self.out_of_plane | self.outside_bounds)
+        placed = ~(self.beyond_poses | self.out_of_plane | self.outside_bounds)
+        return placed if self.occluded is None else placed & ~self.occluded
 
     def rejected(self) -> dict[str, int]:
         """Number of frames rejected for each reason."""
-        return {"beyond_poses": int(self.beyond_poses.sum()),
-                "out_of_plane": int(self.out_of_plane.sum()),
-                "outside_bounds": int(self.outside_bounds.sum())}
+        counts = {"beyond_poses": int(self.beyond_poses.sum()),
+                  "out_of_plane": int(self.out_of_plane.sum()),
+                  "outside_bounds": int(self.outside_bounds.sum())}
+        if self.occluded is not None:
+            counts["occluded"] = int(self.occluded.sum())
+        return counts
 
 
 def lights_at(t: np.ndarray, poses: Poses, *, plane: Plane, z_tolerance: float,
@@ -181,6 +188,7 @@ class FrameSink:
         self._moments = np.zeros((5, 0, 0))  # sums of Y^2, Cb Y, Cr Y, Cb^2, Cr^2
         self._pending = 0
         self.n = 0
+        self.brightness: list[float] = []  # mean linear luminance of each frame
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -207,6 +215,8 @@ class FrameSink:
         if self._frames is None:
             self._start(ycc.shape[:2])
         self._buffer[self._pending] = ycc[..., 0]
+        self.brightness.append(float(np.nanmean(ycc[..., 0])) if np.isfinite(ycc[..., 0]).any()
+                               else np.nan)
         self._chroma_buffer[:, self._pending] = np.moveaxis(ycc[..., 1:], -1, 0)
         if valid:
             ycc = np.moveaxis(ycc if self._rig is None else np.nan_to_num(ycc), -1, 0)
@@ -217,6 +227,10 @@ class FrameSink:
         self.n += 1
         if self._pending == self._chunk_frames:
             self._flush()
+
+    def lit(self) -> bool:
+        """Whether any valid frame so far holds light (a black video is no capture)."""
+        return bool(np.nanmax(self._sums[0], initial=0.0) > 0)
 
     def finish(self, t: np.ndarray) -> dict:
         """Write the last block, the ``t``, ``y``, ``x``, ``channel`` coordinates and chroma.
@@ -299,6 +313,9 @@ def finish_ingest(group: zarr.Group, sink: FrameSink, t: np.ndarray, lights: Lig
     if n_valid < MIN_VALID_FRAMES:
         raise LtmError(f"only {n_valid} of {sink.n} frames are valid (rejected: "
                        f"{lights.rejected()}); expected at least {MIN_VALID_FRAMES}")
+    if not sink.lit():
+        raise LtmError(f"all {n_valid} valid frames are black (no light reached the camera); "
+                       "expected a capture lit by the moving light")
     chroma = sink.finish(t)
     write_lights(group, lights)
     group.attrs[ACQUISITION_ATTR] = acquisition

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -46,16 +47,19 @@ from ltmstore.stages.frames import (
     DEFAULT_CHUNK_FRAMES,
     STAGE,
     FrameSink,
+    Lights,
     finish_ingest,
     lights_at,
 )
+from ltmstore.stages.occlusion import occluded_frames
 
 Z_TOLERANCE_FRACTION = 0.05
 
 
 def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: bool = False,
            z_tolerance: float | None = None, progress: bool = True,
-           chunk_frames: int = DEFAULT_CHUNK_FRAMES, hashes: dict[str, str] | None = None) -> dict:
+           chunk_frames: int = DEFAULT_CHUNK_FRAMES, hashes: dict[str, str] | None = None,
+           allow_dropped: bool = False) -> dict:
     """Decode an acquisition folder's video and poses into a new store.
 
     Parameters
@@ -76,6 +80,9 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     hashes : dict, optional
         ``Acquisition.sha256()`` of the inputs when the caller has just computed it (the
         archive does, to judge staleness); otherwise the inputs are hashed here.
+    allow_dropped : bool, default False
+        Leave out damaged or missing video frames (counted as ``dropped_frames``) instead of
+        failing (:class:`ltmstore.capture.video.VideoReader`).
 
     Returns
     -------
@@ -103,12 +110,14 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
                     time_offset=acq.time_offset, view_plane=acq.view_plane)
     hashes = hashes or _sha256(acq)
     hashed = time.perf_counter()
-    with VideoReader(acq.video) as video, new_store(store, overwrite=overwrite) as group:
+    with VideoReader(acq.video, allow_dropped=allow_dropped) as video, new_store(
+            store, overwrite=overwrite, inputs=(acq.folder, acq.video, acq.poses)) as group:
         begin_stage(group, STAGE)
         sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames, rig=rig)
-        bar = tqdm(video, total=video.frame_count, disable=not progress, unit="frame",
+        bar = tqdm(video.frames(), total=video.frame_count, disable=not progress, unit="frame",
                    desc="ingest")
-        for i, rgb in enumerate(bar):
+        index = []
+        for i, rgb in bar:
             at = light(np.array([i / video.fps]))
             view = None
             if rig is not None:
@@ -116,19 +125,31 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
                 view = (float(at.view["p"][0]), float(at.view["q"][0]))
             sink.add(rgb, bool(at.valid[0]), source=f"video {str(acq.video)!r} frame {i}",
                      view=view)
-        t = np.arange(sink.n) / video.fps
+            index.append(i)
+        t = np.array(index, dtype=np.float64) / video.fps
         timings = {"setup": round(hashed - started, 3),
                    "frames": round(time.perf_counter() - hashed, 3)}
         info = {"fps": video.fps, "frame_size": list(sink.shape), "z_tolerance": z_tolerance,
-                "time_offset": acq.time_offset, "chunk_frames": chunk_frames, "timings": timings}
+                "time_offset": acq.time_offset, "chunk_frames": chunk_frames, "timings": timings,
+                "dropped_frames": dict(video.dropped)}
         if rig is not None:
             info["registration"] = {
                 "camera_frame_size": [rig.intrinsics.height, rig.intrinsics.width],
                 "observed_fraction_mean": sink.observed[0] / max(sink.observed[1], 1)}
         provenance = _provenance(acq, hashes, video, sink, rig)
-        record = finish_ingest(group, sink, t, light(t), acquisition=provenance, info=info,
-                               started=started)
+        record = finish_ingest(group, sink, t, _judge_occlusion(light(t), sink, rig),
+                               acquisition=provenance, info=info, started=started)
     return {**record, "store": str(store)}
+
+
+def _judge_occlusion(lights: Lights, sink: FrameSink, rig: ViewRig | None) -> Lights:
+    """``lights`` with the occluded frames (:mod:`ltmstore.stages.occlusion`) rejected: 4D
+    captures (a moving camera B changes the brightness too, which the model does not hold)."""
+    if rig is not None or lights.view:
+        return lights
+    mask = occluded_frames(np.asarray(sink.brightness), lights.r, lights.s, lights.z,
+                           lights.valid)
+    return replace(lights, occluded=mask)
 
 
 def _sha256(acq: Acquisition) -> dict[str, str]:

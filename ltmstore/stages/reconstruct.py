@@ -9,6 +9,7 @@ solves, and writes its own shard, so a tile is the unit of progress and of failu
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import asdict, dataclass
 from functools import partial
@@ -140,6 +141,7 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     estimate = get_method(method)(batch, geometry, **choice.params)
     tile = samples.shape[:2]
     if EXPECTED_ERROR in out:  # the luminance pass also maps the confidence
+        estimate = np.maximum(estimate, 0)  # light transport is never negative (Cb, Cr may be)
         out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
         out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
             batch, geometry, method, params=choice.params, folds=1).reshape(tile)
@@ -229,6 +231,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     if int(tile) != tile or tile < 1:
         raise LtmError(f"--tile {tile!r} must be a positive whole number of pixels")
     get_method(method)
+    path = os.path.abspath(path)  # Dask workers resolve a relative path in their own folder
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
     st.check_writable(path)
@@ -243,11 +246,12 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
                auto=auto, color=color, tile=tile, progress=progress, resume=resume, force=force)
     try:
-        if not revise:
-            return _on_cluster(path, client, scheduler, run)
-        # a good ltm exists: build the new one on a linked copy, swapped in only when complete
-        with st.revised_store(path) as side:
-            return _on_cluster(side, client, scheduler, run)
+        with st.writing(path):
+            if not revise:
+                return _on_cluster(path, client, scheduler, run)
+            # a good ltm exists: build the new one on a linked copy, swapped in when complete
+            with st.revised_store(path) as side:
+                return _on_cluster(side, client, scheduler, run)
     except OSError as exc:  # a full disk, a store made read-only during the run
         kept = ("the previous ltm is untouched" if revise
                 else "its reconstruct stage stays incomplete")
@@ -395,11 +399,40 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
+    for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
+        check_solved(group, name, plan, client)
     for name in [LTM, *CHROMA_LTM.values()]:
         if tiles_name(name) in group:
             del group[tiles_name(name)]
     st.complete_stage(group, "reconstruct", info)
     return info
+
+
+def check_solved(group: zarr.Group, name: str, plan: TilePlan, client: Client) -> None:
+    """Refuse to complete the stage unless the samples hold data and the LTM ``name`` is finite
+    wherever its samples are (a worker that wrote elsewhere, a lost shard).
+
+    Raises
+    ------
+    LtmError
+        Naming the first tile at fault.
+    """
+    samples_name = SAMPLES if name == LTM else name.replace(LTM, SAMPLES, 1)
+    samples = da.from_zarr(group[samples_name], chunks=plan.block)
+    ltm = da.from_zarr(group[name], chunks=plan.block)
+    lattice_axes = tuple(range(2, samples.ndim))
+    observed = da.isfinite(samples)
+    missing = (observed & ~da.isfinite(ltm)).any(axis=lattice_axes)
+    n_observed, missing = client.compute([observed.sum(), missing], sync=True)
+    where = f"store {str(getattr(group.store, 'root', group.store))!r}"
+    if n_observed == 0:
+        raise LtmError(f"{where}: {samples_name} holds no finite sample (did the Dask workers "
+                       "see the store?); the reconstruct stage stays incomplete")
+    if missing.any():
+        y, x = np.argwhere(missing)[0]
+        raise LtmError(f"{where}: {name} is not finite at {int(missing.sum())} observed pixels "
+                       f"(first in tile {y // plan.tile[0]}, {x // plan.tile[1]}); the "
+                       "reconstruct stage stays incomplete")
 
 
 def _mean_heldout(records: list[dict]) -> float | None:

@@ -1,0 +1,55 @@
+"""A damaged video is an error, or its frames are dropped, counted and reported (issue 13,
+item 2). The videos are written here and damaged by flipping bytes, as storage does."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from ingest_helpers import N, make_acquisition
+from pipeline_helpers import run_ltm
+
+
+def flip(path, start: int, count: int = 16) -> None:
+    data = bytearray(path.read_bytes())
+    for i in range(start, start + count):
+        data[i] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def last_line(proc) -> str:
+    assert "Traceback" not in proc.stderr
+    return proc.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize("video", ["video.mkv", "video.mp4"])
+def test_flipped_bytes_are_an_error_or_dropped_frames(tmp_path, video):
+    acq = make_acquisition(tmp_path / "acq", video=video)
+    flip(acq / video, (acq / video).stat().st_size // 2)
+    proc = run_ltm("ingest", acq, tmp_path / "a.zarr")
+    assert proc.returncode == 2
+    assert last_line(proc).startswith(f"ltm: error: video '{acq / video}' cannot be decoded: "
+                                      "frame ")
+    assert "is damaged" in last_line(proc) and "--allow-dropped-frames" in last_line(proc)
+    assert not (tmp_path / "a.zarr").exists()
+
+    proc = run_ltm("ingest", acq, tmp_path / "b.zarr", "--allow-dropped-frames")
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads(proc.stdout)
+    assert record["dropped_frames"]["damaged"] >= 1
+    assert record["n_frames"] + sum(record["dropped_frames"].values()) == N
+
+
+def test_a_damaged_header_does_not_hide_a_truncation(tmp_path):
+    acq = make_acquisition(tmp_path / "acq")
+    video = acq / "video.mkv"
+    data = video.read_bytes()
+    duration = data.index(b"\x44\x89") + 2  # the Matroska Duration element's size and value
+    video.write_bytes(data[: int(len(data) * 0.6)])
+    flip(video, duration, 9)
+    proc = run_ltm("ingest", acq, tmp_path / "a.zarr")
+    assert proc.returncode == 2
+    assert "cannot be decoded" in last_line(proc)
+    proc = run_ltm("ingest", acq, tmp_path / "b.zarr", "--allow-dropped-frames")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["n_frames"] < N
