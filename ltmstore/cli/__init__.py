@@ -11,8 +11,10 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
+from functools import partial
 
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, LtmWarning
 
 EPILOG = "Docs: README.md. Stores open with xarray.open_zarr(STORE, consolidated=False)."
 
@@ -46,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg quiet: our errors say it
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
     args = build_parser().parse_args(argv)
+    shown = warnings.showwarning
+    warnings.showwarning = partial(_one_line_warning, shown)
     try:
         args.func(args)
     except LtmError as exc:
@@ -54,7 +58,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("ltm: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = shown
     return 0
+
+
+def _one_line_warning(fallback, message, category, *args, **kwargs) -> None:
+    """Print an :class:`LtmWarning` as ``ltm: warning: <message>``; others as Python does."""
+    if issubclass(category, LtmWarning):
+        print(f"ltm: warning: {message}", file=sys.stderr)
+    else:
+        fallback(message, category, *args, **kwargs)
 
 
 if __name__ == "__main__":

@@ -35,9 +35,11 @@ from ltmstore.core.dims import (
     Plane,
 )
 from ltmstore.core.errors import LtmError
+from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.confidence import expected_error, flag_unsupported
-from ltmstore.solve.select import Choice, choose_params
+from ltmstore.solve.select import AUTO, AUTO_METHODS, Choice, choose_method, choose_params
+from ltmstore.stages.reconstruct_far import METHOD_MAP, far_models, reconstruct_far
 from ltmstore.stages.resample import (
     Binning,
     bin_frames,
@@ -132,7 +134,12 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     start = time.perf_counter()
     (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
     batch = samples.reshape(-1, *samples.shape[2:])
-    choice = (choose_params(batch, geometry, method, params=params, seed=y0 * 65536 + x0)
+    seed = y0 * 65536 + x0
+    label = method
+    if method == AUTO:  # the method and model size first, then its regularisation
+        picked = choose_method(batch, geometry, seed=seed)
+        label, method, params = picked.label, picked.method, {**picked.params}
+    choice = (choose_params(batch, geometry, method, params=params, seed=seed)
               if auto else Choice(params=params, errors={}))
     estimate = get_method(method)(batch, geometry, **choice.params)
     tile = samples.shape[:2]
@@ -141,9 +148,9 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
             batch, geometry, method, params=choice.params, folds=1).reshape(tile)
     out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
-    record = {"seconds": time.perf_counter() - start, "params": choice.params,
-              "heldout": choice.errors}
     ty, tx = block_info[0]["chunk-location"][:2]
+    record = {"seconds": time.perf_counter() - start, "method": label, "tile": [int(ty), int(tx)],
+              "params": choice.params, "heldout": choice.errors}
     out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
     result = np.empty((1, 1), dtype=object)
     result[0, 0] = record
@@ -172,7 +179,7 @@ def _write_samples(group: zarr.Group, name: str, frames: da.Array, binning: Binn
 def reconstruct(path, *, client: Client | None = None, scheduler: str | None = None,
                 lattice: tuple[int, int] | None = None, delta_rs: float | None = None,
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
-                color: bool | None = None, tile: int = 32, overwrite: bool = False,
+                color: bool | None = None, tile: int | None = None, overwrite: bool = False,
                 resume: bool = True, progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store.
 
@@ -194,7 +201,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     lattice, delta_rs : optional
         ``(R, S)`` cells, or the cell size; neither: :func:`choose_lattice`.
     method : str
-        A name from :data:`ltmstore.solve.METHODS`.
+        A name from :data:`ltmstore.solve.METHODS`. A far-light store (a classic RTI capture)
+        takes ``auto``, ``ptm``, ``hsh`` or ``rbf``, fitted at the exact light directions
+        (:mod:`ltmstore.stages.reconstruct_far`).
     params : dict, optional
         Keyword arguments of the method.
     auto : bool
@@ -203,8 +212,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     color : bool, optional
         Also reconstruct Cb and Cr LTMs (``ltm_cb``, ``ltm_cr``: a colour LTM). Default: when
         ingest found that the chroma varies with the light (``stages.ingest.chroma``).
-    tile : int
-        Pixel tile side: the unit of work and the ``ltm`` shard.
+    tile : int, optional
+        Pixel tile side: the unit of work and the ``ltm`` shard (default 32; 64 for a far-light
+        store).
     overwrite : bool
         Recompute an existing complete ``ltm``.
     resume : bool
@@ -219,16 +229,25 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     """
     if lattice is not None and delta_rs is not None:
         raise LtmError("give either --lattice or --delta-rs, not both")
-    if int(tile) != tile or tile < 1:
+    if tile is not None and (int(tile) != tile or tile < 1):
         raise LtmError(f"--tile {tile!r} must be a positive whole number of pixels")
-    get_method(method)
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
+    far = light_kind(group.attrs.get("acquisition", {})) == FAR
+    if far:
+        far_models(method)
+        if delta_rs is not None:
+            raise LtmError("--delta-rs is a cell size on a plane; a far-light store takes "
+                           "--lattice RxS (cells over the disk of directions)")
+    elif method != AUTO:
+        get_method(method)
     st.check_writable(path)
     revise = bool(st.stages(group).get("reconstruct", {}).get("complete"))
     if revise and not overwrite:
         raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute it")
-    if color is None:
+    if far:
+        color = False  # relit colour comes from the frames at the fitted weights
+    elif color is None:
         color = not st.stages(group)["ingest"].get("chroma", {}).get("invariant", True)
     if color and FRAME_CHROMA not in group:
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
@@ -249,6 +268,12 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
 
 def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -> dict:
     group = st.open_group(path, mode="r+")
+    if light_kind(group.attrs["acquisition"]) == FAR:  # a thread pool is enough
+        key = run_key(**{k: run[k] for k in ("lattice", "delta_rs", "method", "params", "auto",
+                                             "color", "tile")})
+        return reconstruct_far(group, lattice=run["lattice"], method=run["method"],
+                               tile=run["tile"], progress=run["progress"], key=key)
+    run = {**run, "tile": run["tile"] or 32}
     if client is not None:
         return _reconstruct(group, client, **run)
     with dask_client(scheduler) as own:
@@ -264,7 +289,7 @@ def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: 
     return json.loads(json.dumps({
         "lattice": None if lattice is None else [int(n) for n in lattice],
         "delta_rs": delta_rs, "method": method, "params": params, "auto": bool(auto),
-        "color": bool(color), "tile": int(tile),
+        "color": bool(color), "tile": None if tile is None else int(tile),
         "software": soft["version"]}, sort_keys=True, default=str))
 
 
@@ -361,6 +386,7 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     solve = partial(_solve_tiles, plan=plan, geometry=geometry, method=method, params=params,
                     client=client, progress=progress)
     records, solved = solve(group[SAMPLES], out, auto=auto)
+    write_method_map(group, records, plan, method)
     for c in CHROMA_CHANNELS if color else ():  # the colour LTM: same method, default params
         chroma_out = {LTM: group[CHROMA_LTM[c]], TILES: group[tiles_name(CHROMA_LTM[c])]}
         solved += solve(group[CHROMA_SAMPLES[c]], chroma_out, auto=False)[1]
@@ -377,6 +403,22 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             del group[tiles_name(name)]
     st.complete_stage(group, "reconstruct", info)
     return info
+
+
+def write_method_map(group: zarr.Group, records: list[dict], plan: TilePlan,
+                     method: str) -> None:
+    """``method_map (tile_y, tile_x)``: the method each tile used (index into attr
+    ``methods``)."""
+    names = [label for label, _, _ in AUTO_METHODS] if method == AUTO else [method]
+    chosen = np.full(plan.grid, -1, dtype=np.int16)
+    for rec in records:
+        chosen[tuple(rec["tile"])] = names.index(rec.get("method", method))
+    arr = st.create_variable(group, METHOD_MAP, ("tile_y", "tile_x"), plan.grid, chunks=plan.grid,
+                             dtype=np.int16, fill_value=-1, attrs={
+                                 "methods": names, "tile": list(plan.tile),
+                                 "long_name": "method chosen per pixel tile (index into "
+                                              "'methods') by held-out error"})
+    arr[...] = chosen
 
 
 def _mean_heldout(records: list[dict]) -> float | None:
@@ -430,6 +472,6 @@ def summarise_choices(records: list[dict]) -> dict:
     """How many tiles chose each parameter setting."""
     counts: dict[str, int] = {}
     for rec in records:
-        key = json.dumps(rec["params"], sort_keys=True)
+        key = rec.get("method", "") + " " + json.dumps(rec["params"], sort_keys=True)
         counts[key] = counts.get(key, 0) + 1
     return counts
