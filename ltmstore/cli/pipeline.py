@@ -112,6 +112,13 @@ def register(sub) -> None:
     p.add_argument("--folds", type=int, default=5, help="held-out folds (default: %(default)s)")
     p.add_argument("--pixels", type=int, default=4096,
                    help="pixels sampled for the held-out test (default: %(default)s)")
+    p.add_argument("--holdout-lights", type=int, metavar="EVERY",
+                   help="a store made by ingest-rti: hide every EVERY-th light of its .lp, fit "
+                   "the default pipeline and PTM, HSH2, HSH3, RBF on the rest, and score the "
+                   "relit images against the hidden photographs (PSNR, SSIM of 8-bit sRGB)")
+    p.add_argument("--test-lights", metavar="TEST.lp",
+                   help="a store made by ingest-rti: fit on all its lights, score at the lights "
+                   "and photographs of this .lp (SynthRTI: dome/ then test/)")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("bench", help="every method: speed against accuracy, JSON and charts",
@@ -222,6 +229,9 @@ def cmd_relight(a: argparse.Namespace) -> None:
 
 def cmd_evaluate(a: argparse.Namespace) -> None:
     from ltmstore.core.store import open_store
+
+    if a.holdout_lights is not None or a.test_lights is not None:
+        return cmd_evaluate_photos(a)
     from ltmstore.judge.evaluate import compare_stores
     from ltmstore.judge.heldout import heldout_store
 
@@ -230,6 +240,23 @@ def cmd_evaluate(a: argparse.Namespace) -> None:
                                        max_pixels=a.pixels)}
     if a.truth:
         report["truth"] = compare_stores(a.store, a.truth, maps_png=a.maps)
+    print_json(report)
+
+
+def cmd_evaluate_photos(a: argparse.Namespace) -> None:
+    from ltmstore.core.store import open_group
+    from ltmstore.judge.photos import heldout_photos
+
+    if a.holdout_lights is not None and a.test_lights is not None:
+        raise LtmError("give either --holdout-lights or --test-lights, not both")
+    lp = open_group(a.store).attrs.get("acquisition", {}).get("lp_path")
+    if lp is None:
+        raise LtmError(f"store {a.store!r} records no .lp file: held-out photographs need a "
+                       "store made by `ltm ingest-rti` (this version)")
+    report = heldout_photos(lp, every=a.holdout_lights, test_lp=a.test_lights)
+    for name, row in report["methods"].items():
+        print(f"{name:>8s}  PSNR {row['mean_psnr']:6.2f} dB  SSIM {row['mean_ssim']:.3f}",
+              file=sys.stderr)
     print_json(report)
 
 

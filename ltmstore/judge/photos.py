@@ -67,7 +67,9 @@ def score(relit_linear: np.ndarray, photo8: np.ndarray) -> tuple[float, float]:
     photograph (8-bit sRGB), over every pixel and channel."""
     pred = encode(np.nan_to_num(relit_linear), "srgb")
     psnr = peak_signal_noise_ratio(photo8, pred, data_range=255)
-    ssim = structural_similarity(photo8, pred, channel_axis=-1, data_range=255)
+    side = min(photo8.shape[:2])
+    window = min(7, side if side % 2 else side - 1)  # skimage's default, or a tiny image's side
+    ssim = structural_similarity(photo8, pred, channel_axis=-1, data_range=255, win_size=window)
     return float(psnr), float(ssim)
 
 

@@ -11,11 +11,11 @@ Models (:class:`Model`), smallest first:
 
 * ``ptm``: biquadratic in ``(lx, ly)`` (6 terms; :func:`ltmstore.solve.ptm.ptm_basis`);
 * ``hsh2``, ``hsh3``: hemispherical harmonics of order 2 and 3 (9 and 16 terms);
-* ``rbf:WIDTH:SMOOTHING``: Gaussian kernel ridge on unit directions around the pixel's mean
-  (far from every light it tends to the mean, never to 0 or to infinity), ``WIDTH`` the kernel's
-  standard deviation (chord length) and ``SMOOTHING`` the ridge added to the kernel's unit
-  diagonal; :data:`RBF_WIDTHS` x :data:`RBF_SMOOTHING` are the candidates, chosen by
-  leave-one-out.
+* ``rbf:WIDTH:SMOOTHING``: Gaussian kernel ridge on unit directions plus an unpenalised
+  constant (far from every light it tends to that constant, never to 0 or to infinity),
+  ``WIDTH`` the kernel's standard deviation (chord length) and ``SMOOTHING`` the ridge added to
+  the kernel's unit diagonal; :data:`RBF_WIDTHS` x :data:`RBF_SMOOTHING` are the candidates,
+  chosen by leave-one-out.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import scipy.linalg
 from scipy.spatial.distance import cdist
 
 from ltmstore.core.errors import LtmError
@@ -62,9 +63,12 @@ class Model:
             raise LtmError(f"unknown far-light model {self.name!r}")
         width, smoothing = (float(v) for v in self.name.split(":")[1:])
         n = len(train)
-        gram = _gaussian(train, train, width) + smoothing * np.eye(n)
-        centre = np.eye(n) - 1.0 / n
-        return 1.0 / n + _gaussian(query, train, width) @ np.linalg.solve(gram, centre)
+        # [[K + s I, 1], [1^T, 0]] [alpha; c] = [y; 0]: the interpolant k(q) alpha + c
+        system = np.ones((n + 1, n + 1))
+        system[:n, :n] = _gaussian(train, train, width) + smoothing * np.eye(n)
+        system[n, n] = 0.0
+        rows = np.column_stack([_gaussian(query, train, width), np.ones(len(query))])
+        return scipy.linalg.solve(system, rows.T, assume_a="sym").T[:, :n]
 
     def hat(self, train: np.ndarray) -> np.ndarray:
         """The ``(n, n)`` hat matrix: fitted values at the training lights."""
