@@ -17,7 +17,7 @@ WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THRE
 
 @contextmanager
 def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
-                timeout: float = 30) -> Iterator[Client]:
+                timeout: float = 30, small: bool = False) -> Iterator[Client]:
     """A :class:`distributed.Client` for the run, closed afterwards.
 
     Parameters
@@ -26,6 +26,10 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
         Address of a running Dask scheduler (``tcp://host:8786``). Without it a
         :class:`~distributed.LocalCluster` of single-threaded worker processes is started
         (one per core, at most 4) and closed at the end.
+    small : bool
+        The work is small (:func:`is_small`): without ``scheduler``, run it on threads in this
+        process (a :class:`~distributed.LocalCluster` with ``processes=False``, started in a
+        fraction of a second) instead of starting worker processes.
     """
     if scheduler:
         try:
@@ -36,6 +40,12 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
             yield client
         return
     n = n_workers or max(1, min(4, os.cpu_count() or 1))
+    if small:
+        with LocalCluster(n_workers=1, threads_per_worker=n, processes=False,
+                          dashboard_address=None, silence_logs=logging.CRITICAL
+                          ) as cluster, Client(cluster) as client:
+            yield client
+        return
     # The scheduler's HTTP port on any free port (never a collision warning); worker logs
     # quiet: a task's error reaches the client, which reports it as one line, so the worker's
     # own traceback log is noise.
@@ -44,3 +54,11 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
                       silence_logs=logging.CRITICAL
                       ) as cluster, Client(cluster) as client:
         yield client
+
+
+SMALL_BYTES = 256 * 2**20  # inputs below this run on threads: a process cluster costs seconds
+
+
+def is_small(nbytes: int) -> bool:
+    """Whether work on ``nbytes`` of input is small enough for threads in this process."""
+    return nbytes < SMALL_BYTES

@@ -102,7 +102,7 @@ def default_relit(lp: str | os.PathLike, train: Sequence[int] | None, query: np.
 
 def heldout_photos(lp: str | os.PathLike, *, every: int | None = 6,
                    test_lp: str | os.PathLike | None = None,
-                   methods: Sequence[str] = METHODS) -> dict:
+                   methods: Sequence[str] = METHODS, keep: int | None = None) -> dict:
     """Score ``methods`` on held-out photographs of a classic capture.
 
     Parameters
@@ -115,6 +115,9 @@ def heldout_photos(lp: str | os.PathLike, *, every: int | None = 6,
         Fit on every light of ``lp``; score at the lights and photographs of this ``.lp``.
     methods : sequence of str
         Among :data:`METHODS`.
+    keep : int, optional
+        Also return the photograph and every method's 8-bit relit image of held-out light
+        ``keep`` (under ``images``: arrays, not JSON).
 
     Returns
     -------
@@ -146,6 +149,8 @@ def heldout_photos(lp: str | os.PathLike, *, every: int | None = 6,
         protocol = f"hide every {every}th light"
     report = {"capture": str(lp), "protocol": protocol, "n_train": len(train_dirs),
               "held_out": query.round(4).tolist(), "methods": {}}
+    if keep is not None:
+        report["images"] = {"photograph": truth[keep]}
     for method in methods:
         start = time.perf_counter()
         if method == "default":
@@ -155,6 +160,8 @@ def heldout_photos(lp: str | os.PathLike, *, every: int | None = 6,
         else:
             images, name = classic_relit(train8, train_dirs, query, method)
         scores = np.array([score(im, ph) for im, ph in zip(images, truth, strict=True)])
+        if keep is not None:
+            report["images"][method] = encode(images[keep], "srgb")
         report["methods"][method] = {
             "psnr": scores[:, 0].round(3).tolist(), "ssim": scores[:, 1].round(4).tolist(),
             "mean_psnr": float(scores[:, 0].mean()), "mean_ssim": float(scores[:, 1].mean()),

@@ -30,6 +30,7 @@ AUTO = "auto"
 # (label, method, fixed parameters), smallest model first
 AUTO_METHODS = (("ptm", "ptm", {}), ("hsh2", "hsh", {"order": 2}), ("hsh3", "hsh", {"order": 3}),
                 ("cs", "cs", {}), ("rbf", "rbf", {}), ("cubic", "cubic", {}))
+AUTO_METHODS_6D = (("cs", "cs", {}),)  # the one method measured on 6-D lattices (bench_6d.py)
 TIE = 0.01  # relative held-out error within which the smaller model wins
 PIXELS = 48  # pixels of a tile that are cross-validated
 FOLDS = 2
@@ -88,7 +89,12 @@ class MethodChoice:
 
 def choose_method(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> MethodChoice:
     """The entry of :data:`AUTO_METHODS` with the lowest held-out error on a few pixels of the
-    batch (the same held-out cells for every candidate); the smaller model wins a tie."""
+    batch (the same held-out cells for every candidate); the smaller model wins a tie. A 6-D
+    lattice keeps :data:`AUTO_METHODS_6D`."""
+    entries = AUTO_METHODS if geometry.ndim == 2 else AUTO_METHODS_6D
+    if len(entries) == 1:
+        (label, method, params), = entries
+        return MethodChoice(label=label, method=method, params=dict(params), errors={})
     rng = np.random.default_rng(seed)
     rows = rng.choice(len(samples), size=min(PIXELS, len(samples)), replace=False)
     errors = {label: heldout_error(samples[rows], geometry, method, folds=FOLDS, seed=seed,
@@ -98,3 +104,9 @@ def choose_method(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> 
     label, method, params = next(entry for entry in AUTO_METHODS
                                  if not np.isfinite(best) or errors[entry[0]] <= best * (1 + TIE))
     return MethodChoice(label=label, method=method, params=dict(params), errors=errors)
+
+
+def solve_auto(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> np.ndarray:
+    """``method="auto"`` as a solver: :func:`choose_method` on the batch, then that method."""
+    choice = choose_method(samples, geometry, seed=seed)
+    return get_method(choice.method)(samples, geometry, **choice.params)

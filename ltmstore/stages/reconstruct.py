@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from functools import partial
 
 import dask.array as da
@@ -20,7 +20,7 @@ from distributed import Client, as_completed
 from tqdm.auto import tqdm
 
 from ltmstore.core import store as st
-from ltmstore.core.cluster import dask_client
+from ltmstore.core.cluster import dask_client, is_small
 from ltmstore.core.dims import (
     CHROMA_CHANNELS,
     CHROMA_LTM,
@@ -39,6 +39,7 @@ from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.confidence import expected_error, flag_unsupported
 from ltmstore.solve.select import AUTO, AUTO_METHODS, Choice, choose_method, choose_params
+from ltmstore.stages.plan import TilePlan, plan_tiles
 from ltmstore.stages.reconstruct_far import METHOD_MAP, far_models, reconstruct_far
 from ltmstore.stages.resample import (
     Binning,
@@ -51,62 +52,6 @@ from ltmstore.stages.resample import (
 
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
-
-
-@dataclass(frozen=True)
-class TilePlan:
-    """Pixel tiles (the unit of work, one ``ltm`` shard each) and the lattice chunks (inner
-    chunks) of the store."""
-
-    image: tuple[int, int]
-    lattice: tuple[int, ...]
-    tile: tuple[int, int]
-    lattice_chunk: tuple[int, ...]
-
-    @property
-    def block(self) -> tuple[int, ...]:
-        """One tile of whole LTFs: the Dask chunk of ``samples`` and ``ltm``."""
-        return (*self.tile, *self.lattice)
-
-    @property
-    def shards(self) -> tuple[int, ...]:
-        """The block, rounded up along the lattice to whole inner chunks (Zarr requires it)."""
-        return (*self.tile, *(-(-n // c) * c for n, c in
-                              zip(self.lattice, self.lattice_chunk, strict=True)))
-
-    @property
-    def chunks(self) -> tuple[int, ...]:
-        return (*self.tile, *self.lattice_chunk)
-
-    @property
-    def grid(self) -> tuple[int, int]:
-        """Tiles along ``y`` and ``x``: the shape of the tile completion marks."""
-        return tuple(-(-n // t) for n, t in zip(self.image, self.tile, strict=True))
-
-    @property
-    def n_tiles(self) -> int:
-        return int(np.prod(self.grid))
-
-
-def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 32,
-               chunk_bytes: int = 64 * 1024, max_block_bytes: int = 64 * 2**20) -> TilePlan:
-    """Square pixel tiles of side ``tile`` and lattice chunks of about ``chunk_bytes``.
-
-    The lattice is split evenly along every axis (powers of two) until one inner chunk of a
-    tile, in float32, is no larger than ``chunk_bytes``: a point-light query then reads one or
-    a few inner chunks per tile instead of the whole shard. The tile side is halved while one
-    tile of whole LTFs would exceed ``max_block_bytes`` (6D lattices: a solver holds several
-    copies of its tile).
-    """
-    while tile > 1 and 4 * tile * tile * int(np.prod(lattice)) > max_block_bytes:
-        tile = -(-tile // 2)
-    tile_yx = (min(tile, image[0]), min(tile, image[1]))
-    chunk = list(lattice)
-    while 4 * np.prod(tile_yx) * np.prod(chunk) > chunk_bytes and max(chunk) > 1:
-        axis = int(np.argmax(chunk))
-        chunk[axis] = -(-chunk[axis] // 2)
-    return TilePlan(image=tuple(image), lattice=tuple(lattice), tile=tile_yx,
-                    lattice_chunk=tuple(chunk))
 
 
 def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray, *,
@@ -276,7 +221,7 @@ def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -
     run = {**run, "tile": run["tile"] or 32}
     if client is not None:
         return _reconstruct(group, client, **run)
-    with dask_client(scheduler) as own:
+    with dask_client(scheduler, small=is_small(group["frames"].nbytes)) as own:
         return _reconstruct(group, own, **run)
 
 
@@ -393,7 +338,8 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     timings["solve_s"] = time.perf_counter() - start
     passes = 1 + len(CHROMA_CHANNELS) * bool(color)
     info = {**sampling, "method": method, "params": params, "auto": auto, "color": color,
-            "run": key, "chosen_per_tile": summarise_choices(records), "plan": asdict(plan),
+            "run": key, "chosen_per_tile": summarise_choices(records),
+            "methods_per_tile": summarise_methods(records), "plan": asdict(plan),
             "heldout_error": _mean_heldout(records), "tiles_total": plan.n_tiles * passes,
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
@@ -468,10 +414,16 @@ def _read_marks(marks: zarr.Array) -> np.ndarray:
         return out
 
 
+def summarise_methods(records: list[dict]) -> dict:
+    """How many tiles used each method (``auto`` chooses per tile)."""
+    labels = [str(rec.get("method")) for rec in records]
+    return {label: labels.count(label) for label in sorted(set(labels))}
+
+
 def summarise_choices(records: list[dict]) -> dict:
     """How many tiles chose each parameter setting."""
     counts: dict[str, int] = {}
     for rec in records:
-        key = rec.get("method", "") + " " + json.dumps(rec["params"], sort_keys=True)
+        key = json.dumps(rec["params"], sort_keys=True)
         counts[key] = counts.get(key, 0) + 1
     return counts

@@ -41,6 +41,7 @@ from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.solve import Geometry
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
 from ltmstore.stages.ingest_rti import DISK
+from ltmstore.stages.plan import plan_tiles
 
 METHOD_MAP = "method_map"  # (tile_y, tile_x) index into its attribute "methods"
 FAR_LATTICE = (16, 16)
@@ -73,8 +74,6 @@ def reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, metho
 
     Returns the ``reconstruct`` stage record.
     """
-    from ltmstore.stages.reconstruct import plan_tiles
-
     start = time.perf_counter()
     models = far_models(method)
     valid = np.asarray(group["pose_valid"][:], dtype=bool)
@@ -121,6 +120,7 @@ def reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, metho
     with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
         mse = np.array(list(pool.map(lambda i: _loo_mse(pixels(i)[2], loo, usable), tiles)))
         chosen = choose_tiles(mse, models, len(train)).reshape(plan.grid)
+        timings["fit_s"] = time.perf_counter() - solve_start  # the models are chosen
         list(tqdm(pool.map(write, tiles), total=plan.n_tiles, desc="reconstruct tiles",
                   disable=not progress))
     timings["solve_s"] = time.perf_counter() - solve_start
@@ -137,7 +137,8 @@ def reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, metho
     info = {"lattice": lat.to_json(), "light_kind": FAR, "method": method, "params": {},
             "auto": method == "auto", "color": False, "run": key, "K": int(valid.sum()),
             "M": lat.size, "sampling_ratio": float(valid.sum()) / lat.size,
-            "path_density": None, "chosen_per_tile": counts, "plan": asdict(plan),
+            "path_density": None, "chosen_per_tile": counts,
+            "methods_per_tile": counts, "plan": asdict(plan),
             "tiles_total": plan.n_tiles, "tiles_solved": plan.n_tiles, "tiles_resumed": 0,
             "resumed": False, "timings": timings,
             "seconds_per_pixel": timings["solve_s"] / int(np.prod(plan.image))}

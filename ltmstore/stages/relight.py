@@ -230,20 +230,22 @@ def relight(store, lights=None, *, directions=None, view=None,
             raise LtmError(f"lights {points.tolist()!r} of a far-light store must lie inside the "
                            "unit disk (r = lx, s = ly, r^2 + s^2 < 1)")
         dirs = (disk_to_direction(points[:, 0], points[:, 1]) if far else
-                plane_to_direction(points[:, 0], points[:, 1], _plane(acq).height))
+                plane_to_direction(points[:, 0], points[:, 1], _plane(acq, ds[LTM]).height))
     if far:
         if view is not None:
             raise LtmError("view given, but a far-light store has no view axes (p, q)")
         return _relight_far(ds, dirs, color)
-    plane = _plane(acq)
+    plane = _plane(acq, ds[LTM])
     points = direction_to_plane(dirs, plane.height) if directions is not None else points
     return _relight_near(ds, plane, points, dirs, view, color)
 
 
-def _plane(acq: dict) -> Plane:
-    if "plane" not in acq:
-        raise LtmError("the store records no illumination plane (acquisition 'plane')")
-    return Plane.from_json(acq["plane"])
+def _plane(acq: dict, ltm: xr.DataArray) -> Plane:
+    """The store's plane; without one, the lattice's extent at unit height."""
+    if "plane" in acq:
+        return Plane.from_json(acq["plane"])
+    r, s = ltm["r"].values, ltm["s"].values
+    return Plane(r=(float(r[0]), float(r[-1])), s=(float(s[0]), float(s[-1])), height=1.0)
 
 
 def _above_horizon(directions) -> np.ndarray:
