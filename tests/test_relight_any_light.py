@@ -80,3 +80,23 @@ def test_near_store_direction_is_the_plane_position_at_its_height(small_store):
     by_position = relight(ds, [(r, s)], color=False).values
     by_direction = relight(ds, directions=[(r, s, h)], color=False).values
     np.testing.assert_allclose(by_direction, by_position, rtol=1e-5)
+
+
+def test_cli_relight_direction_and_one_line_errors(far_store, tmp_path, capsys):
+    from ltmstore.cli import main
+
+    out = tmp_path / "raking.png"
+    assert main(["relight", str(far_store), "--direction", "0,1,0.02", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert out.stat().st_size > 0
+    assert err.count("\n") == 1 and err.startswith("ltm: warning: 1 light(s) lie more than 25")
+    assert main(["relight", str(far_store), "--direction", "1,0,-0.1", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "at or below the horizon" in err and "Traceback" not in err
+
+
+def test_cli_evaluate_needs_an_rti_store(small_store, capsys):
+    from ltmstore.cli import main
+
+    assert main(["evaluate", str(small_store), "--holdout-lights", "6"]) == 2
+    assert "records no .lp file" in capsys.readouterr().err
