@@ -44,7 +44,7 @@ from ltmstore.stages.ingest_rti import DISK
 from ltmstore.stages.plan import plan_tiles
 
 METHOD_MAP = "method_map"  # (tile_y, tile_x) index into its attribute "methods"
-FAR_LATTICE = (16, 16)
+FAR_LATTICE = (8, 8)
 FAR_TILE = 64
 CHOICE_PIXELS = 1024  # pixels of a tile whose leave-one-out error chooses its model
 # A tile leaves the image's model only when its own lowers the tile's MSE by more than this
