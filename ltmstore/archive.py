@@ -28,6 +28,7 @@ from pathlib import Path
 from ltmstore.capture.acquisition import load_acquisition
 from ltmstore.core.errors import LtmError
 from ltmstore.core.provenance import software
+from ltmstore.solve import DEFAULT_METHOD
 
 STORE_SUFFIX = ".zarr"
 NEXT_SUFFIX = ".next"
@@ -46,7 +47,8 @@ class ArchiveParams:
     delta_rs : float, optional
         Cell size in plane units.
     method : str
-        Solver name (:data:`ltmstore.solve.METHODS`).
+        Solver name (:data:`ltmstore.solve.METHODS`, or ``auto``, the default of
+        ``ltm reconstruct``).
     auto : bool
         Choose the regularisation per tile by held-out error.
     tile : int
@@ -55,7 +57,7 @@ class ArchiveParams:
 
     lattice: tuple[int, int] | None = None
     delta_rs: float | None = None
-    method: str = "cs"
+    method: str = DEFAULT_METHOD
     auto: bool = True
     tile: int = 32
 

@@ -80,10 +80,11 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
     batch = samples.reshape(-1, *samples.shape[2:])
     seed = y0 * 65536 + x0
-    label = method
+    label, method_error = method, None
     if method == AUTO:  # the method and model size first, then its regularisation
         picked = choose_method(batch, geometry, seed=seed)
         label, method, params = picked.label, picked.method, {**picked.params}
+        method_error = picked.errors.get(label)
     choice = (choose_params(batch, geometry, method, params=params, seed=seed)
               if auto else Choice(params=params, errors={}))
     estimate = get_method(method)(batch, geometry, **choice.params)
@@ -95,7 +96,7 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
     ty, tx = block_info[0]["chunk-location"][:2]
     record = {"seconds": time.perf_counter() - start, "method": label, "tile": [int(ty), int(tx)],
-              "params": choice.params, "heldout": choice.errors}
+              "params": choice.params, "heldout": choice.errors, "method_error": method_error}
     out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
     result = np.empty((1, 1), dtype=object)
     result[0, 0] = record
@@ -186,6 +187,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                            "--lattice RxS (cells over the disk of directions)")
     elif method != AUTO:
         get_method(method)
+    elif params:
+        raise LtmError(f"params {params!r} need a named method; auto chooses the method and its "
+                       "parameters per tile")
     st.check_writable(path)
     revise = bool(st.stages(group).get("reconstruct", {}).get("complete"))
     if revise and not overwrite:
@@ -368,13 +372,14 @@ def write_method_map(group: zarr.Group, records: list[dict], plan: TilePlan,
 
 
 def _mean_heldout(records: list[dict]) -> float | None:
-    """Mean over tiles of the held-out relative error of the chosen parameters."""
+    """Mean over tiles of the held-out relative error of the chosen parameters (of the chosen
+    method, for a tile whose method had no parameters to choose)."""
     errors = []
     for rec in records:
         chosen = rec["params"]
-        for value, error in (rec.get("heldout") or {}).items():
-            if any(str(v) == str(value) for v in chosen.values()):
-                errors.append(error)
+        found = [error for value, error in (rec.get("heldout") or {}).items()
+                 if any(str(v) == str(value) for v in chosen.values())]
+        errors += found or ([rec["method_error"]] if rec.get("method_error") is not None else [])
     return float(np.mean(errors)) if errors else None
 
 
