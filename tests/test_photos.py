@@ -59,3 +59,23 @@ def test_tiny_capture_and_bad_arguments(tmp_path):
         heldout_photos(lp, every=1)
     with pytest.raises(LtmError, match=r"unknown methods \['lars'\]"):
         heldout_photos(lp, methods=("lars",))
+
+
+def test_cli_evaluate_holdout_lights(tmp_path, capsys):
+    import json
+
+    from ltmstore.cli import main
+
+    lp = write_capture(tmp_path / "cap", dirs=np.column_stack([
+        np.cos(np.arange(12)), np.sin(np.arange(12)), 1 + np.arange(12) % 3]))
+    store = str(tmp_path / "s.zarr")
+    assert main(["ingest-rti", str(lp), store]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", store, "--holdout-lights", "4"]) == 0
+    out = capsys.readouterr()
+    report = json.loads(out.out)
+    assert report["protocol"] == "hide every 4th light" and len(report["held_out"]) == 3
+    assert set(report["methods"]) == {"default", *CLASSIC}
+    assert out.err.count("PSNR") == 5
+    assert main(["evaluate", store, "--holdout-lights", "2", "--test-lights", str(lp)]) == 2
+    assert "either --holdout-lights or --test-lights" in capsys.readouterr().err
