@@ -34,6 +34,7 @@ from ltmstore.archive import (
 )
 from ltmstore.core.cluster import dask_client
 from ltmstore.core.errors import LtmError
+from ltmstore.solve import DEFAULT_METHOD
 
 ARTIFACT_KEY = "archive-summary"
 FLOW_NAME = "reprocess-archive"
@@ -53,7 +54,7 @@ def _params(lattice, delta_rs, method, auto, tile) -> ArchiveParams:
 
 @flow(name=FLOW_NAME)
 def reprocess_archive(root: str, lattice: list[int] | None = None, delta_rs: float | None = None,
-                      method: str = "cs", auto: bool = True, tile: int = 32,
+                      method: str = DEFAULT_METHOD, auto: bool = True, tile: int = 32,
                       max_concurrent: int = 2, scheduler: str | None = None) -> list[dict]:
     """Reprocess the new, stale and failed acquisitions under ``root`` (never up-to-date ones).
 

@@ -29,6 +29,7 @@ from ltmstore.capture.acquisition import load_acquisition
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lock import locked
 from ltmstore.core.provenance import software
+from ltmstore.solve import DEFAULT_METHOD
 
 STORE_SUFFIX = ".zarr"
 NEXT_SUFFIX = ".next"
@@ -48,7 +49,8 @@ class ArchiveParams:
     delta_rs : float, optional
         Cell size in plane units.
     method : str
-        Solver name (:data:`ltmstore.solve.METHODS`).
+        Solver name (:data:`ltmstore.solve.METHODS`, or ``auto``, the default of
+        ``ltm reconstruct``).
     auto : bool
         Choose the regularisation per tile by held-out error.
     tile : int
@@ -57,7 +59,7 @@ class ArchiveParams:
 
     lattice: tuple[int, int] | None = None
     delta_rs: float | None = None
-    method: str = "cs"
+    method: str = DEFAULT_METHOD
     auto: bool = True
     tile: int = 32
 

@@ -71,7 +71,7 @@ def test_info_prints_the_provenance(good_store):
     assert info["software"]["version"] == f"ltmstore {software()['version']}"
     assert "commit" in info["software"]
     assert info["parameters"]["run"]["lattice"] == [12, 12]
-    assert info["parameters"]["method"] == "cs" and info["parameters"]["run"]["tile"] == 16
+    assert info["parameters"]["method"] == "auto" and info["parameters"]["run"]["tile"] == 16
     assert set(info["inputs"]["sha256"]) == {"video", "poses"}
     assert {"ingest_s", "resample_s", "solve_s"} <= set(info["timings"])
     assert all(s["complete"] for s in info["stages"].values())

@@ -210,7 +210,7 @@ def test_lp_files(base):
         if kind == "ok":
             names, dirs = result
             declared = int(data.decode().split()[0])
-            assert len(names) == declared == len(dirs)
+            assert 1 <= len(names) == len(dirs) <= declared  # lights below the horizon skipped
             assert all(inside(folder / n, folder) and (folder / n).is_file() for n in names)
             assert np.isfinite(dirs).all() and (dirs[:, 2] > 0).all()
             np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1, rtol=1e-12)

@@ -56,7 +56,7 @@ def assert_not_complete(store) -> None:
 
 def test_a_failing_solver_leaves_the_stage_incomplete(ingested, client):
     with pytest.raises(ValueError, match="many"):
-        reconstruct(ingested, client=client, lattice=(16, 16), overwrite=True,
+        reconstruct(ingested, client=client, lattice=(16, 16), overwrite=True, method="cs",
                     params={"n_iter": "many"}, progress=False)
     assert_not_complete(ingested)
     proc = run_ltm("relight", ingested, "--light", "0,0", "-o", ingested.parent / "x.png")
@@ -89,7 +89,7 @@ def test_a_failed_rerun_on_another_lattice_leaves_the_good_ltm_untouched(reconst
     before = tree_digest(reconstructed)
     with pytest.raises(ValueError, match="many"):
         reconstruct(reconstructed, client=client, lattice=(12, 12), overwrite=True,
-                    params={"n_iter": "many"}, progress=False)
+                    method="cs", params={"n_iter": "many"}, progress=False)
     assert tree_digest(reconstructed) == before
     assert not revision_path(reconstructed).exists()
     ds = open_store(reconstructed)

@@ -118,8 +118,14 @@ def test_plan_pads_shards_to_whole_inner_chunks():
 def test_regularisation_and_confidence_are_chosen_and_stored(flow_run):
     ds = open_store(flow_run[0])
     rec = ds.attrs["stages"]["reconstruct"]
-    assert rec["auto"] and sum(rec["chosen_per_tile"].values()) == rec["plan"]["image"][0] // 32
-    chosen = {json.loads(k)["lam_min"] for k in rec["chosen_per_tile"]}
+    tiles = rec["plan"]["image"][0] // 32
+    assert rec["auto"] and sum(rec["chosen_per_tile"].values()) == tiles
+    # the default (auto) chooses the method per tile and records it as a map
+    assert rec["method"] == "auto" and sum(rec["methods_per_tile"].values()) == tiles
+    names = ds["method_map"].attrs["methods"]
+    assert sorted({names[i] for i in ds["method_map"].values.ravel()}) == sorted(
+        rec["methods_per_tile"])
+    chosen = {json.loads(k).get("lam_min", 1e-3) for k in rec["chosen_per_tile"]}
     assert chosen <= {3e-3, 1e-3, 3e-4}
     assert ds["unsupported"].dims == ("y", "x") and ds["unsupported"].dtype == bool
     error = ds["expected_error"].values

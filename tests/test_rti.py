@@ -10,13 +10,13 @@ import pytest
 import xarray as xr
 from ingest_helpers import encode, tree_hashes
 
-from ltmstore.capture.lp import read_lp
+from ltmstore.capture.lp import LpWarning, read_lp
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
-from ltmstore.stages.ingest_rti import EXTENT_PER_HEIGHT, ingest_rti
+from ltmstore.stages.ingest_rti import ingest_rti
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-# images, height, width, lights outside the default plane
+# images, height, width, lights that the old plane [-2h, 2h]^2 dropped (all are kept now)
 REAL = {"realrti-item3-icon": (72, 395, 402, 19), "realrti-item9-coin": (48, 289, 279, 4),
         "loewenkopf": (240, 43, 64, 68)}
 # Light directions of the tiny capture: (lx, ly, lz) before normalisation.
@@ -71,10 +71,10 @@ def test_read_lp_names_with_subfolder_and_spaces(tmp_path):
     ("1\nim00.png 0 x 1\n", "line 2: 'im00.png 0 x 1' must be 'image lx ly lz'"),
     ("1\nim00.png 0 1\n", "line 2: 'im00.png 0 1' must be 'image lx ly lz'"),
     ("1\nim00.png 0 nan 1\n", "line 2: .* three finite numbers"),
-    ("1\nim00.png 0.5 0 -0.2\n", r"line 2: lz = -0.2 for 'im00.png'; expected lz > 0"),
-    ("1\nim00.png 0 0 0\n", "line 2: lz = 0.0 for 'im00.png'; expected lz > 0"),
+    ("1\nim00.png 0.5 0 -0.2\n", "has no light above the horizon"),
+    ("1\nim00.png 0 0 0\n", "has no light above the horizon"),
     ("1\nmissing.png 0 0 1\n", "line 2: image 'missing.png' does not exist"),
-    ("1\n../im00.png 0 0 1\n", "line 2: image '../im00.png' leaves the folder"),
+    ("1\n../missing.png 0 0 1\n", r"line 2: image '../missing.png' does not exist \(nor"),
 ])
 def test_bad_lp(lp, text, match):
     bad = lp.parent / "bad.lp"
@@ -83,11 +83,63 @@ def test_bad_lp(lp, text, match):
         read_lp(bad)
 
 
-def test_lp_absolute_image_path(lp):
-    bad = lp.parent / "bad.lp"
-    bad.write_text(f"1\n{lp.parent / 'im00.png'} 0 0 1\n")
-    with pytest.raises(LtmError, match="is an absolute path"):
-        read_lp(bad)
+def test_lp_absolute_and_windows_paths_resolve_by_name(lp):
+    other = lp.parent / "other.lp"
+    other.write_text(f"3\n{lp.parent / 'im00.png'} 0 0 1\nC:\\capture\\jpg\\im01.png 0.1 0 1\n"
+                     "../im02.png 0 0.1 1\n")
+    with pytest.warns(LpWarning, match=r"other.lp: 3 image path\(s\) written on another machine "
+                      r"found by file name \(first: '/"):
+        names, dirs = read_lp(other)
+    assert names == ["im00.png", "im01.png", "im02.png"] and len(dirs) == 3
+
+
+def test_lp_rtibuilder_layout(tmp_path):
+    lp = write_capture(tmp_path / "project" / "jpeg-exports")
+    (tmp_path / "project" / "assembly-files").mkdir()
+    moved = tmp_path / "project" / "assembly-files" / "capture.lp"
+    moved.write_text(lp.read_text().replace("im", "D:\\project\\jpeg-exports\\im"))
+    lp.unlink()
+    with pytest.warns(LpWarning, match="found by file name"):
+        names, _ = read_lp(moved)
+    assert names[0] == "../jpeg-exports/im00.png"
+    report = ingest_rti(moved, tmp_path / "s.zarr", progress=False)
+    assert report["n_valid"] == len(DIRS)
+
+
+def test_lp_never_reads_outside_the_capture(tmp_path):
+    write_capture(tmp_path / "elsewhere")
+    (tmp_path / "cap").mkdir()
+    (tmp_path / "cap" / "dirs.lp").write_text("1\n../elsewhere/im00.png 0 0 1\n")
+    with pytest.raises(LtmError, match=r"image '../elsewhere/im00.png' does not exist \(nor "
+                       r"'im00.png' beside the .lp file or in a sibling image folder\)"):
+        read_lp(tmp_path / "cap" / "dirs.lp")
+
+
+def test_lp_lights_below_the_horizon_are_skipped_with_one_warning(lp):
+    text = lp.read_text().splitlines()
+    text[0] = str(len(DIRS) + 2)
+    text += ["im00.png 0.5 0 -0.001", "im01.png 1 0 -0.2"]
+    lp.write_text("\n".join(text) + "\n")
+    with pytest.warns(LpWarning) as caught:
+        names, dirs = read_lp(lp)
+    assert len(caught) == 1
+    assert str(caught[0].message).endswith("skipped 2 light(s) at or below the horizon: line 14 "
+                                           "(lz = -0.001), line 15 (lz = -0.2)")
+    assert len(names) == len(DIRS) and (dirs[:, 2] > 0).all()
+
+
+def test_lp_16_bit_images_keep_16_bits(tmp_path):
+    folder = tmp_path / "cap16"
+    folder.mkdir()
+    levels = [1000 + 50 * i for i in range(8)]  # 16-bit levels 8 bits cannot all tell apart
+    lines = [str(len(levels))]
+    for i, v in enumerate(levels):
+        cv2.imwrite(str(folder / f"im{i}.png"), np.full((4, 4, 3), v, np.uint16))
+        lines.append(f"im{i}.png {0.1 * i} 0 1")
+    (folder / "dirs.lp").write_text("\n".join(lines) + "\n")
+    ingest_rti(folder / "dirs.lp", tmp_path / "s.zarr", progress=False)
+    frames = open_store(tmp_path / "s.zarr").frames.mean(("y", "x")).values
+    assert len(np.unique(frames)) == 8 and np.all(np.diff(frames) > 0)
 
 
 def test_lp_missing(tmp_path):
@@ -98,35 +150,34 @@ def test_lp_missing(tmp_path):
 def test_ingest_rti(lp, tmp_path):
     before = tree_hashes(lp.parent)
     store = tmp_path / "s.zarr"
-    report = ingest_rti(lp, store, height=2.0, extent=1.5, progress=False, chunk_frames=4)
+    report = ingest_rti(lp, store, progress=False, chunk_frames=4)
     n = len(DIRS)
-    r, s = 2.0 * DIRS[:, 0] / DIRS[:, 2], 2.0 * DIRS[:, 1] / DIRS[:, 2]
-    inside = (np.abs(r) <= 1.5) & (np.abs(s) <= 1.5)
-    assert report["n_frames"] == n and report["n_valid"] == inside.sum() == 8
-    assert report["rejected"] == {"beyond_poses": 0, "out_of_plane": 0,
-                                  "outside_bounds": n - inside.sum()}
+    unit = DIRS / np.linalg.norm(DIRS, axis=1, keepdims=True)
+    assert report["n_frames"] == n and report["n_valid"] == n  # every light is kept
+    assert report["rejected"] == {"beyond_poses": 0, "out_of_plane": 0, "outside_bounds": 0}
     ds = xr.open_zarr(store, consolidated=False)
     assert dict(ds.sizes) == {"t": n, "y": 6, "x": 5, "channel": 2}
     np.testing.assert_array_equal(ds.t, np.arange(n))
-    np.testing.assert_allclose(ds.pose_r, r)
-    np.testing.assert_allclose(ds.pose_s, s)
-    np.testing.assert_allclose(ds.pose_z, 2.0)
-    np.testing.assert_array_equal(ds.pose_valid, inside)
+    np.testing.assert_allclose(np.column_stack([ds.pose_r, ds.pose_s, ds.pose_z]), unit)
+    assert ds.pose_valid.values.all()
     luma = COLOUR @ [0.299, 0.587, 0.114]
     np.testing.assert_allclose(ds.frames.mean(("y", "x")), gains(n) * luma, rtol=0.02)
     ratio = [(COLOUR[2] - luma) / 1.772 / luma, (COLOUR[0] - luma) / 1.402 / luma]
     np.testing.assert_allclose(ds.chroma.values, np.broadcast_to(ratio, (6, 5, 2)), atol=0.01)
     acq = open_store(store).attrs["acquisition"]
-    assert acq["source"] == "rti" and acq["lp"] == "dirs.lp" and acq["height"] == 2.0
-    assert acq["plane"] == {"r": [-1.5, 1.5], "s": [-1.5, 1.5], "height": 2.0, "unit": "m"}
+    assert acq["source"] == "rti" and acq["lp"] == "dirs.lp" and acq["light_kind"] == "far"
+    assert acq["lp_path"] == str(lp.resolve())
+    assert acq["coordinates"]["r"]["units"] == "1"
     assert set(acq["sha256"]) == {"lp", "images"}
     assert tree_hashes(lp.parent) == before
 
 
-def test_default_extent(lp, tmp_path):
-    report = ingest_rti(lp, tmp_path / "s.zarr", progress=False)
-    # extent 2 * height: only the light at 71.6 degrees from the zenith ([3, 0, 1]) is outside
-    assert report["rejected"]["outside_bounds"] == 1
+def test_ingest_rti_subset_of_lights(lp, tmp_path):
+    report = ingest_rti(lp, tmp_path / "s.zarr", lights=[0, 2, 3, 4, 6, 7, 8, 10],
+                        progress=False)
+    assert report["n_frames"] == 8
+    with pytest.raises(LtmError, match=r"lights \[0, 11\] must be indices of the 11 lights"):
+        ingest_rti(lp, tmp_path / "t.zarr", lights=[0, 11], progress=False)
 
 
 def test_image_size_mismatch(lp, tmp_path):
@@ -142,25 +193,12 @@ def test_image_not_decodable(lp, tmp_path):
         ingest_rti(lp, tmp_path / "s.zarr", progress=False)
 
 
-@pytest.mark.parametrize("kwargs, match", [({"height": 0}, "height 0 must be a positive"),
-                                           ({"extent": -1.0}, "extent -1.0 must be a positive"),
-                                           ({"height": float("nan")}, "height nan must be")])
-def test_bad_geometry(lp, tmp_path, kwargs, match):
-    with pytest.raises(LtmError, match=match):
-        ingest_rti(lp, tmp_path / "s.zarr", progress=False, **kwargs)
-
-
-def test_too_few_lights_inside(lp, tmp_path):
-    with pytest.raises(LtmError, match=r"only 3 of 11 frames are valid"):
-        ingest_rti(lp, tmp_path / "s.zarr", extent=0.15, progress=False)
-
-
 def test_existing_store(lp, tmp_path):
     store = tmp_path / "s.zarr"
     ingest_rti(lp, store, progress=False)
     with pytest.raises(LtmError, match="already exists"):
         ingest_rti(lp, store, progress=False)
-    assert ingest_rti(lp, store, extent=0.6, overwrite=True, progress=False)["n_valid"] == 8
+    assert ingest_rti(lp, store, overwrite=True, progress=False)["n_valid"] == len(DIRS)
 
 
 @pytest.mark.parametrize("name", sorted(REAL))
@@ -169,23 +207,16 @@ def test_real_data(name, tmp_path):
     if not folder.is_dir():
         pytest.skip(f"shared/data/{name} not found: expected the real RTI data at {folder}")
     lp = next(folder.glob("*.lp"))
-    n, height, width, n_outside = REAL[name]
+    n, height, width, n_low = REAL[name]
     names, dirs = read_lp(lp)
     assert len(names) == n
     report = ingest_rti(lp, tmp_path / "s.zarr", progress=False)
     ds = open_store(tmp_path / "s.zarr")
     assert ds.frames.shape == (n, height, width)
     assert ds.chroma.shape == (height, width, 2)
-    # default plane [-2h, 2h]^2: a light is outside when |lx| or |ly| exceeds 2 lz; every light
-    # below atan(1 / (2 sqrt 2)) ~ 19.5 degrees of elevation is outside
-    outside = ~ds.pose_valid.values
-    expected = np.abs(dirs[:, :2]).max(axis=1) / dirs[:, 2] > EXTENT_PER_HEIGHT
-    np.testing.assert_array_equal(outside, expected)
-    low = np.degrees(np.arcsin(dirs[:, 2])) < 19.4
-    assert outside[low].all()
-    assert outside.sum() == n_outside
-    assert report["rejected"] == {"beyond_poses": 0, "out_of_plane": 0,
-                                  "outside_bounds": n_outside}
-    assert report["n_valid"] == n - outside.sum() >= n // 2
+    # every light is kept, the low raking ones too (a plane [-2h, 2h]^2 dropped them)
+    assert (np.abs(dirs[:, :2]).max(axis=1) / dirs[:, 2] > 2).sum() == n_low
+    assert ds.pose_valid.values.all() and report["n_valid"] == n
+    assert report["rejected"] == {"beyond_poses": 0, "out_of_plane": 0, "outside_bounds": 0}
     assert np.isfinite(ds.frames[:: max(1, n // 8)].values).all()
     assert 0 < float(ds.frames[0].mean()) < 1

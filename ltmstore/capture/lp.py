@@ -7,16 +7,21 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from ltmstore.capture.acquisition import is_file, resolve_inside
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, LtmWarning
 
 MAX_IMAGE_PIXELS = 100_000_000  # a declared image size above this is refused before decoding
 MAX_LP_BYTES = 16 * 1024 * 1024  # a light file is a few kB; refuse anything this large
+
+
+class LpWarning(LtmWarning):
+    """A light file entry was skipped or its image found under another path (one line)."""
 
 
 def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
@@ -24,6 +29,11 @@ def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
 
     The first line holds the number of images ``N``; each of the next ``N`` non-blank lines an
     image file name (relative to the ``.lp`` file) and a direction ``lx ly lz`` towards the light.
+
+    A light at or below the horizon (``lz <= 0``) is skipped with one :class:`LpWarning` for
+    the whole file. An image path written on another machine (absolute, Windows backslashes,
+    leaving the folder, RTIBuilder's ``assembly-files/`` beside ``jpeg-exports/``) is found by
+    its file name inside the capture's folder tree (:func:`find_image`), with one warning.
 
     Parameters
     ----------
@@ -33,15 +43,15 @@ def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     Returns
     -------
     names : list of str
-        Image file names as written in the file.
+        Image paths relative to the ``.lp`` file's folder (as written when they resolve there).
     directions : ndarray, shape (N, 3)
         Unit vectors (normalised), ``lz > 0``.
 
     Raises
     ------
     LtmError
-        With a one-line message naming the line for a malformed file, a light at or below the
-        horizon, or an image that is missing or outside the folder.
+        With a one-line message naming the line for a malformed file, an image that cannot be
+        found inside the capture's folder tree, or a file with no light above the horizon.
     """
     path = Path(path)
     lines = _lines(path)
@@ -49,23 +59,73 @@ def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     entries = lines[1:]
     if len(entries) != count:
         raise LtmError(f"{str(path)} declares {count} images but lists {len(entries)}")
-    names, directions = [], []
+    names, directions, below, moved = [], [], [], []
     for number, text in entries:
         name, direction = _entry(path, number, text)
-        image = resolve_inside(path.parent, name, f"{str(path)} line {number}: image")
-        if not is_file(image):
-            raise LtmError(f"{str(path)} line {number}: image {name!r} does not exist")
-        names.append(name)
+        if not direction[2] > 0:
+            below.append(f"line {number} (lz = {direction[2]:g})")
+            continue
+        image, by_name = find_image(path, name, number)
+        names.append(os.path.relpath(image, path.parent.resolve()))
         directions.append(direction)
-    directions = np.array(directions, dtype=np.float64)
+        moved += [name] if by_name else []
+    directions = np.array(directions, dtype=np.float64).reshape(-1, 3)
     directions /= np.abs(directions).max(axis=1, keepdims=True)  # no overflow in the norm
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     flat = ~(directions[:, 2] > 0)  # lz so small beside lx, ly that it rounds to 0
-    if flat.any():
-        number, text = entries[int(np.argmax(flat))]
-        raise LtmError(f"{str(path)} line {number}: {text!r} points at the horizon (lz is "
-                       "negligible beside lx, ly); expected a light above the object")
-    return names, directions
+    below += [f"'{names[i]}' (lz negligible)" for i in np.flatnonzero(flat)]
+    if below:
+        warnings.warn(f"{str(path)}: skipped {len(below)} light(s) at or below the horizon: "
+                      f"{', '.join(below)}", LpWarning, stacklevel=2)
+    if moved:
+        warnings.warn(f"{str(path)}: {len(moved)} image path(s) written on another machine "
+                      f"found by file name (first: {moved[0]!r})", LpWarning, stacklevel=2)
+    keep = ~flat
+    if not keep.any():
+        raise LtmError(f"{str(path)} has no light above the horizon (every lz <= 0); expected "
+                       "directions towards lights above the object")
+    return [n for n, k in zip(names, keep, strict=True) if k], directions[keep]
+
+
+IMAGE_FOLDERS = ("jpeg-exports", "jpg", "images", "img")
+
+
+def find_image(lp: Path, name: str, number: int) -> tuple[Path, bool]:
+    """The image ``name`` of line ``number`` and whether it was found by file name alone.
+
+    As written when that resolves to a file inside the ``.lp`` file's folder; else the file
+    name (after the last ``/`` or ``\\``) beside the ``.lp`` file, in one of its subfolders, or,
+    for an ``.lp`` in RTIBuilder's ``assembly-files/``, in a sibling folder of it. Nothing outside
+    that tree is read.
+    """
+    where = f"{str(lp)} line {number}: image"
+    folder = lp.parent
+    try:
+        image = resolve_inside(folder, name, where)
+        if is_file(image):
+            return image, False
+    except LtmError:
+        pass
+    base = name.replace("\\", "/").rstrip("/").split("/")[-1]
+    if base in ("", ".", ".."):
+        raise LtmError(f"{where} {name!r} names no file")
+    root = folder.parent if folder.name.lower() == "assembly-files" else folder
+    places = [folder, *(folder / sub for sub in IMAGE_FOLDERS),
+              *(root / sub for sub in IMAGE_FOLDERS)]
+    places += sorted(p for p in _subfolders(root) if p not in places)
+    for place in places:
+        image = place / base
+        if is_file(image) and image.resolve().is_relative_to(root.resolve()):
+            return image.resolve(), True
+    raise LtmError(f"{where} {name!r} does not exist (nor {base!r} beside the .lp file or in "
+                   "a sibling image folder)")
+
+
+def _subfolders(root: Path) -> list[Path]:
+    try:
+        return [p for p in root.iterdir() if p.is_dir()]
+    except OSError:
+        return []
 
 
 def _lines(path: Path) -> list[tuple[int, str]]:
@@ -102,9 +162,6 @@ def _entry(path: Path, number: int, text: str) -> tuple[str, list[float]]:
     if len(direction) != 3 or not all(math.isfinite(v) for v in direction):
         raise LtmError(f"{str(path)} line {number}: {text!r} must be 'image lx ly lz' with "
                        "three finite numbers")
-    if direction[2] <= 0:
-        raise LtmError(f"{str(path)} line {number}: lz = {direction[2]!r} for {parts[0]!r}; "
-                       "expected lz > 0 (a light above the object)")
     return parts[0], direction
 
 
@@ -129,7 +186,7 @@ def _declared_size(data: bytes, name: str) -> tuple[int, int]:
 
 
 def decode_image(data: bytes, name: str) -> np.ndarray:
-    """Decode one image file's bytes as (H, W, 3) uint8 RGB.
+    """Decode one image file's bytes as (H, W, 3) RGB: uint8, or uint16 for a 16-bit image.
 
     The header's declared size is checked first (:data:`MAX_IMAGE_PIXELS`), so a corrupt or
     hostile header never makes the decoder allocate gigabytes.
@@ -139,7 +196,8 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
         raise LtmError(f"image {name!r} declares {width} x {height} pixels; expected at most "
                        f"{MAX_IMAGE_PIXELS} pixels")
     try:
-        bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        flags = cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH  # 16-bit images keep 16 bits
+        bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
     except cv2.error:  # empty data, or a header declaring more pixels than OpenCV accepts
         bgr = None
     if bgr is None:

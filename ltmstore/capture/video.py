@@ -23,10 +23,11 @@ from ltmstore.core.transfer import decode
 ALLOW_OPTION = "--allow-dropped-frames"
 
 
-def transfer_lut(transfer: str) -> np.ndarray:
-    """Linear light of each 8-bit code value, as a (256,) float32 table (see
-    :func:`ltmstore.core.transfer.decode`)."""
-    return decode(np.arange(256), transfer)
+def transfer_lut(transfer: str, bits: int = 8) -> np.ndarray:
+    """Linear light of each code value of ``bits`` (8 or 16), as a ``(2**bits,)`` float32 table
+    (see :func:`ltmstore.core.transfer.decode`)."""
+    codes = np.arange(2**bits)
+    return decode(codes if bits == 8 else codes * (255 / (2**bits - 1)), transfer)
 
 
 class VideoReader:

@@ -1,9 +1,11 @@
 """The ``ltm`` command: parse, call the library, print. User mistakes never show a traceback.
 
-One module per command group: :mod:`~ltmstore.cli.pipeline` (demo, simulate, ingest, reconstruct,
-relight, evaluate, bench, info), :mod:`~ltmstore.cli.capture` (board, calibrate, track, sync) and
-:mod:`~ltmstore.cli.archive`; each has a ``register(sub)`` that adds its commands. The CLI sits on
-top: it may import every part of the package, and ``flows`` for the Prefect-run commands.
+One module per command group, each with a ``register(sub)`` that adds its commands:
+:mod:`~ltmstore.cli.pipeline` (demo, simulate, ingest, reconstruct, relight, evaluate, bench,
+info), :mod:`~ltmstore.cli.check`, :mod:`~ltmstore.cli.share` (export),
+:mod:`~ltmstore.cli.capture` (board, calibrate, track, sync) and :mod:`~ltmstore.cli.archive`.
+The CLI sits on top: it may import every part of the package, and ``flows`` for the Prefect-run
+commands.
 """
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ import os
 import signal
 import sys
 import warnings
+from functools import partial
 
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, LtmWarning
 
 EPILOG = "Docs: README.md. Stores open with xarray.open_zarr(STORE, consolidated=False)."
 
@@ -48,7 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg quiet: our errors say it
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
     args = build_parser().parse_args(argv)
-    _notes_in_one_line()
+    shown = warnings.showwarning
+    warnings.showwarning = partial(_one_line_warning, shown)
     try:
         args.func(args)
         sys.stdout.flush()  # a closed pipe (`ltm info STORE | head -1`) shows up here
@@ -68,6 +72,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("ltm: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = shown
     return 0
 
 
@@ -80,21 +86,18 @@ def quiet_broken_pipe() -> int:
     return 128 + signal.SIGPIPE
 
 
-def _notes_in_one_line() -> None:
-    """Print a store's :class:`~ltmstore.core.store.NoChecksumWarning` as ``ltm: note: ...``."""
+def _one_line_warning(fallback, message, category, *args, **kwargs) -> None:
+    """Print an :class:`LtmWarning` as ``ltm: warning: ...`` and a store's
+    :class:`~ltmstore.core.store.NoChecksumWarning` as ``ltm: note: ...``; others as Python
+    does."""
     from ltmstore.core.store import NoChecksumWarning
 
-    default = warnings.showwarning
-    if getattr(default, "ltm_notes", False):
-        return
-
-    def show(message, category, *rest, **kw):
-        if issubclass(category, NoChecksumWarning):
-            print(f"ltm: note: {message}", file=sys.stderr)
-        else:
-            default(message, category, *rest, **kw)
-    show.ltm_notes = True
-    warnings.showwarning = show
+    if issubclass(category, NoChecksumWarning):
+        print(f"ltm: note: {message}", file=sys.stderr)
+    elif issubclass(category, LtmWarning):
+        print(f"ltm: warning: {message}", file=sys.stderr)
+    else:
+        fallback(message, category, *args, **kwargs)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ def register(sub) -> None:
         grid = p.add_mutually_exclusive_group()
         grid.add_argument("--lattice", help="RxS cells over the plane (default: automatic)")
         grid.add_argument("--delta-rs", type=number, help="cell size in plane units")
-        p.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS))
+        p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *sorted(METHODS)])
         p.add_argument("--no-auto", action="store_true", help="fixed default regularisation")
         p.add_argument("--tile", type=int, default=32, help="pixel tile side (default: 32)")
 

@@ -9,7 +9,7 @@ import warnings
 from pathlib import Path
 
 from ltmstore.cli.args import add_output, new_output, number, numbers, print_json
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, LtmWarning
 
 
 def register(sub) -> None:
@@ -55,13 +55,12 @@ def register(sub) -> None:
                    "instead of failing")
     p.set_defaults(func=cmd_ingest)
 
-    p = sub.add_parser("ingest-rti", help="classic RTI capture (images + .lp) -> store")
+    p = sub.add_parser("ingest-rti", help="classic RTI capture (images + .lp) -> store",
+                       description="A far-light store: every light above the horizon is kept "
+                       "as a direction (r = lx, s = ly); lights at or below it are skipped "
+                       "with one warning line.")
     p.add_argument("lp", help="the .lp light file beside the images")
     p.add_argument("store", help="Zarr store to create")
-    p.add_argument("--height", type=number, default=1.0,
-                   help="illumination plane height (default: %(default)s)")
-    p.add_argument("--extent", type=number, default=None,
-                   help="half-side of the square plane (default: 2 x height)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_ingest_rti)
 
@@ -77,8 +76,10 @@ def register(sub) -> None:
                    help=f"run a --lattice or --delta-rs whose K/M (observed cells / cells) is "
                    f"below {MIN_RATIO}; refused otherwise, naming the lattice that reaches "
                    f"{TARGET_RATIO}")
-    p.add_argument("--method", default=DEFAULT_METHOD, choices=sorted(METHODS),
-                   help="solver (default: %(default)s; lars is the slow per-pixel reference)")
+    p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *sorted(METHODS)],
+                   help="solver (default: %(default)s: per pixel tile, the method and model "
+                   "size with the lowest held-out error; lars is the slow per-pixel "
+                   "reference). A far-light store takes auto, ptm, hsh or rbf")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
     p.add_argument("--no-auto", action="store_true",
                    help="keep the method's default regularisation instead of choosing it per "
@@ -86,14 +87,24 @@ def register(sub) -> None:
     p.add_argument("--color", choices=("auto", "on", "off"), default="auto",
                    help="also reconstruct Cb and Cr LTMs (a colour LTM); auto: when ingest "
                    "found that the chroma changes with the light (default: %(default)s)")
-    p.add_argument("--tile", type=int, default=32, help="pixel tile side (default: %(default)s)")
+    p.add_argument("--tile", type=int, default=None,
+                   help="pixel tile side (default: 32; 64 for a far-light store)")
     p.add_argument("--overwrite", action="store_true", help="recompute an existing ltm")
     p.set_defaults(func=cmd_reconstruct)
 
-    p = sub.add_parser("relight", help="render the store under new point lights")
+    p = sub.add_parser("relight", help="render the store under new point lights",
+                       description="Relight any store: a near-light store (handheld LED) at "
+                       "plane positions or directions, a far-light store (ingest-rti) at "
+                       "directions or (lx, ly) positions in the unit disk. Lights far from "
+                       "every captured one are extrapolated smoothly, with a warning.")
     p.add_argument("store")
-    p.add_argument("--light", type=numbers("R,S"), action="append", required=True,
-                   help="R,S light position on the plane; repeat to add lights")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--light", type=numbers("R,S"), action="append",
+                       help="R,S light position in the store's coordinates (on the plane; "
+                       "lx,ly for a far-light store); repeat to add lights")
+    which.add_argument("--direction", type=numbers("LX,LY,LZ", "a direction"), action="append",
+                       help="LX,LY,LZ direction towards the light (normalised; lz > 0); "
+                       "repeat to add lights")
     p.add_argument("--view", type=numbers("P,Q"), default=None, metavar="P,Q",
                    help="6D stores: camera position on the view plane (default: its centre)")
     add_output(p, "relit.png", "image file")
@@ -110,6 +121,13 @@ def register(sub) -> None:
     p.add_argument("--folds", type=int, default=5, help="held-out folds (default: %(default)s)")
     p.add_argument("--pixels", type=int, default=4096,
                    help="pixels sampled for the held-out test (default: %(default)s)")
+    p.add_argument("--holdout-lights", type=int, metavar="EVERY",
+                   help="a store made by ingest-rti: hide every EVERY-th light of its .lp, fit "
+                   "the default pipeline and PTM, HSH2, HSH3, RBF on the rest, and score the "
+                   "relit images against the hidden photographs (PSNR, SSIM of 8-bit sRGB)")
+    p.add_argument("--test-lights", metavar="TEST.lp",
+                   help="a store made by ingest-rti: fit on all its lights, score at the lights "
+                   "and photographs of this .lp (SynthRTI: dome/ then test/)")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("bench", help="every method: speed against accuracy, JSON and charts",
@@ -166,8 +184,7 @@ def cmd_ingest(a: argparse.Namespace) -> None:
 def cmd_ingest_rti(a: argparse.Namespace) -> None:
     from ltmstore.stages.ingest_rti import ingest_rti
 
-    print_json(ingest_rti(a.lp, a.store, height=a.height, extent=a.extent,
-                           overwrite=a.overwrite))
+    print_json(ingest_rti(a.lp, a.store, overwrite=a.overwrite))
 
 
 def cmd_reconstruct(a: argparse.Namespace) -> None:
@@ -179,10 +196,19 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
                        method=a.method, auto=not a.no_auto, tile=a.tile,
                        color={"auto": None, "on": True, "off": False}[a.color],
                        overwrite=a.overwrite, force=a.force)
+    density = info["path_density"]
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
-          f"path density {info['path_density']:.1f}/unit  method {info['method']}  "
+          + ("" if density is None else f"path density {density:.1f}/unit  ")
+          + f"method {info['method']} {summary_of(info['methods_per_tile'])}  "
           f"resample {info['timings']['resample_s']:.1f} s  "
           f"solve {info['timings']['solve_s']:.1f} s")
+
+
+def summary_of(chosen: dict) -> str:
+    """``(name: tiles, ...)`` of the choices per tile, most frequent first."""
+    top = sorted(chosen.items(), key=lambda kv: -kv[1])
+    return "(" + ", ".join(f"{k}: {v}" for k, v in top[:4]) + (", ..." if len(top) > 4 else "") \
+        + " tiles)" if top else ""
 
 
 def cmd_relight(a: argparse.Namespace) -> None:
@@ -196,7 +222,10 @@ def cmd_relight(a: argparse.Namespace) -> None:
     ds = open_store(a.store)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LightClampWarning)
-        images = relight(ds, np.array(a.light), view=a.view).sum("light").values[None]
+        warnings.simplefilter("always", LtmWarning)
+        lights = None if a.light is None else np.array(a.light)
+        directions = None if a.direction is None else np.array(a.direction)
+        images = relight(ds, lights, directions=directions, view=a.view).sum("light").values[None]
     for w in caught:
         print(f"ltm: warning: {w.message}", file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
@@ -210,6 +239,9 @@ def cmd_relight(a: argparse.Namespace) -> None:
 
 def cmd_evaluate(a: argparse.Namespace) -> None:
     from ltmstore.core.store import open_store
+
+    if a.holdout_lights is not None or a.test_lights is not None:
+        return cmd_evaluate_photos(a)
     from ltmstore.judge.evaluate import compare_stores
     from ltmstore.judge.heldout import heldout_store
 
@@ -218,6 +250,23 @@ def cmd_evaluate(a: argparse.Namespace) -> None:
                                        max_pixels=a.pixels)}
     if a.truth:
         report["truth"] = compare_stores(a.store, a.truth, maps_png=a.maps)
+    print_json(report)
+
+
+def cmd_evaluate_photos(a: argparse.Namespace) -> None:
+    from ltmstore.core.store import open_group
+    from ltmstore.judge.photos import heldout_photos
+
+    if a.holdout_lights is not None and a.test_lights is not None:
+        raise LtmError("give either --holdout-lights or --test-lights, not both")
+    lp = open_group(a.store).attrs.get("acquisition", {}).get("lp_path")
+    if lp is None:
+        raise LtmError(f"store {a.store!r} records no .lp file: held-out photographs need a "
+                       "store made by `ltm ingest-rti` (this version)")
+    report = heldout_photos(lp, every=a.holdout_lights, test_lp=a.test_lights)
+    for name, row in report["methods"].items():
+        print(f"{name:>8s}  PSNR {row['mean_psnr']:6.2f} dB  SSIM {row['mean_ssim']:.3f}",
+              file=sys.stderr)
     print_json(report)
 
 

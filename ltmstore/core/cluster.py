@@ -18,7 +18,7 @@ SCHEDULER_TIMEOUT_S = 10.0  # an unreachable scheduler fails within this many se
 
 @contextmanager
 def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
-                timeout: float = SCHEDULER_TIMEOUT_S) -> Iterator[Client]:
+                timeout: float = SCHEDULER_TIMEOUT_S, small: bool = False) -> Iterator[Client]:
     """A :class:`distributed.Client` for the run, closed afterwards.
 
     Parameters
@@ -31,6 +31,10 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
         Workers of the local cluster (default: one per core, at most 4).
     timeout : float
         Seconds to wait for ``scheduler`` before giving up.
+    small : bool
+        The work is small (:func:`is_small`): without ``scheduler``, run it on threads in this
+        process (a :class:`~distributed.LocalCluster` with ``processes=False``, started in a
+        fraction of a second) instead of starting worker processes.
     """
     if scheduler:
         client = _connect(scheduler, timeout)
@@ -38,6 +42,12 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
             yield client
         return
     n = n_workers or max(1, min(4, os.cpu_count() or 1))
+    if small:
+        with LocalCluster(n_workers=1, threads_per_worker=n, processes=False,
+                          dashboard_address=None, silence_logs=logging.CRITICAL
+                          ) as cluster, Client(cluster) as client:
+            yield client
+        return
     # The scheduler's HTTP port on any free port (never a collision warning); worker logs
     # quiet: a task's error reaches the client, which reports it as one line, so the worker's
     # own traceback log is noise.
@@ -63,3 +73,11 @@ def _connect(scheduler: str, timeout: float) -> Client:
         reason = " ".join(str(exc).split()) or type(exc).__name__
         raise LtmError(f"cannot reach Dask scheduler {scheduler!r} within {timeout:g} s: "
                        f"{reason}") from None
+
+
+SMALL_BYTES = 256 * 2**20  # inputs below this run on threads: a process cluster costs seconds
+
+
+def is_small(nbytes: int) -> bool:
+    """Whether work on ``nbytes`` of input is small enough for threads in this process."""
+    return nbytes < SMALL_BYTES

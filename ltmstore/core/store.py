@@ -37,7 +37,7 @@ STAGE_VARIABLES = {
     "ingest": ("frames", "frame_chroma", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q",
                "pose_valid", "chroma", "chroma_spread"),
     "resample": ("samples", "count", "samples_cb", "samples_cr"),
-    "reconstruct": ("ltm", "expected_error", "unsupported", "ltm_cb", "ltm_cr",
+    "reconstruct": ("ltm", "expected_error", "unsupported", "ltm_cb", "ltm_cr", "method_map",
                     "ltm_tiles_done", "ltm_cb_tiles_done", "ltm_cr_tiles_done"),
 }
 

@@ -16,6 +16,7 @@ from ltmstore.core.dims import SAMPLES, Lattice
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store, stages
 from ltmstore.solve import Geometry
+from ltmstore.solve.select import AUTO, solve_auto
 from ltmstore.solve.validate import as_method, check_split, heldout_error, observed_range
 
 
@@ -74,14 +75,14 @@ def heldout_store(store: str | os.PathLike, *, method: str = "cs", folds: int = 
     """
     if int(max_pixels) != max_pixels or max_pixels < 1:
         raise LtmError(f"max_pixels {max_pixels!r} must be a positive integer")
-    as_method(method)
+    solver = solve_auto if method == AUTO else as_method(method)
     ds = open_store(store)
     if SAMPLES not in ds:
         raise LtmError(f"store {str(store)!r} has no complete samples; run ltm reconstruct first")
     geometry = store_geometry(ds)
     start = time.perf_counter()
     samples = _pick_pixels(ds[SAMPLES].data, int(max_pixels), np.random.default_rng([seed, 707]))
-    result = heldout_error(samples, geometry, method, folds=folds, seed=seed, params=params,
+    result = heldout_error(samples, geometry, solver, folds=folds, seed=seed, params=params,
                            fraction=fraction, block=block)
     observed = np.isfinite(samples).reshape(len(samples), -1)
     spread = observed_range(samples)

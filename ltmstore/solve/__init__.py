@@ -70,7 +70,7 @@ Method = Callable[..., np.ndarray]
 METHODS: dict[str, Method] = {"cs": cs.solve, "lars": lars.solve, "omp": omp.solve,
                               "cubic": cubic.solve, "kernel": kernel.solve, "svt": svt.solve,
                               "ptm": ptm.solve, "hsh": hsh.solve, "rbf": rbf.solve}
-DEFAULT_METHOD = "cs"
+DEFAULT_METHOD = "auto"  # per tile, by held-out error (ltmstore.solve.select.choose_method)
 
 
 def get_method(name: str) -> Method:

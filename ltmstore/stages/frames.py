@@ -179,6 +179,7 @@ class FrameSink:
         self._raw_shape: tuple[int, ...] | None = None
         self.observed = [0.0, 0]  # sum over valid frames of the observed grid fraction, count
         self._lut = transfer_lut(transfer)
+        self._transfer = transfer
         self._chunk_frames = _positive_int(chunk_frames, "chunk_frames")
         self._frames: zarr.Array | None = None
         self._buffer = np.empty((0, 0, 0), dtype=np.float32)
@@ -197,7 +198,8 @@ class FrameSink:
 
     def add(self, rgb8: np.ndarray, valid: bool, *, source: str,
             view: tuple[float, float] | None = None) -> None:
-        """Append one ``(H, W, 3)`` uint8 RGB frame; ``valid`` frames count towards chroma.
+        """Append one ``(H, W, 3)`` uint8 (or uint16) RGB frame; ``valid`` frames count towards
+        chroma.
 
         With a rig, ``view = (p, q)`` is the camera position of the frame (NaN: unknown).
         """
@@ -206,6 +208,8 @@ class FrameSink:
         if rgb8.shape != (*self._raw_shape, 3):
             raise LtmError(f"{source} is {rgb8.shape[1]}x{rgb8.shape[0]} pixels; expected "
                            f"{self._raw_shape[1]}x{self._raw_shape[0]} like the first frame")
+        if rgb8.dtype == np.uint16 and len(self._lut) == 256:  # 16-bit images keep 16 bits
+            self._lut = transfer_lut(self._transfer, bits=16)
         ycc = rgb_to_ycbcr(self._lut[rgb8])
         if self._rig is not None:
             ycc = rectify(ycc, self._rig, *(view if view is not None else (np.nan, np.nan)))

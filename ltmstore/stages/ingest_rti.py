@@ -1,9 +1,10 @@
-"""Classic RTI captures (a ``.lp`` light file and its images) to the same store as ingest.
+"""Classic RTI captures (a ``.lp`` light file and its images) to a far-light store.
 
-A light direction ``(lx, ly, lz)`` maps onto the illumination plane at height ``h`` as
-``r = h lx / lz``, ``s = h ly / lz``. The plane rectangle is ``[-E, E]^2``; lights outside it
-(low lights land far out) stay in the store, flagged invalid (``pose_valid`` False, counted as
-``outside_bounds``), never dropped.
+A classic capture's lights are far lights: directions, the same for every pixel. The store keeps
+them as such (:mod:`ltmstore.core.lights`): ``pose_r = lx``, ``pose_s = ly``, ``pose_z = lz``,
+every light above the horizon valid (none is squeezed through a plane or dropped for lying far
+out), and the acquisition record says ``light_kind: far`` with the units of ``r, s``.
+``plane`` is the square ``[-1, 1]^2`` of direction cosines that holds the unit disk.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -20,31 +22,28 @@ from ltmstore.capture.acquisition import sha256_file
 from ltmstore.capture.lp import decode_image, read_lp
 from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
+from ltmstore.core.lights import FAR, KIND_ATTR, coordinate_attrs
 from ltmstore.core.store import begin_stage, new_store
 from ltmstore.stages.frames import DEFAULT_CHUNK_FRAMES, STAGE, FrameSink, Lights, finish_ingest
 
-# Default plane half-extent in units of the height: every light above atan(1/2) ~ 26.6 degrees of
-# elevation lands inside the square, every light below atan(1/(2 sqrt 2)) ~ 19.5 degrees outside.
-EXTENT_PER_HEIGHT = 2.0
+DISK = Plane(r=(-1.0, 1.0), s=(-1.0, 1.0), height=1.0, unit="1")
 
 
-def rti_lights(directions: np.ndarray, plane: Plane) -> Lights:
-    """Project unit directions onto the plane and flag the lights outside its rectangle."""
-    h = plane.height
-    r = h * directions[:, 0] / directions[:, 2]
-    s = h * directions[:, 1] / directions[:, 2]
-    return Lights.classify(r, s, np.full_like(r, h), plane=plane, known=np.ones(len(r), bool),
-                           z_tolerance=0.0)
+def far_lights(directions: np.ndarray) -> Lights:
+    """Every unit direction ``(n, 3)`` as a valid far light (``r, s, z = lx, ly, lz``)."""
+    none = np.zeros(len(directions), dtype=bool)
+    return Lights(r=directions[:, 0].copy(), s=directions[:, 1].copy(),
+                  z=directions[:, 2].copy(), beyond_poses=none, out_of_plane=none,
+                  outside_bounds=none)
 
 
-def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *, height: float = 1.0,
-               extent: float | None = None, overwrite: bool = False, progress: bool = True,
-               chunk_frames: int = DEFAULT_CHUNK_FRAMES) -> dict:
+def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
+               lights: Sequence[int] | None = None, overwrite: bool = False,
+               progress: bool = True, chunk_frames: int = DEFAULT_CHUNK_FRAMES) -> dict:
     """Ingest a classic RTI capture (sRGB images under known light directions) into a store.
 
     The store has the layout of :func:`ltmstore.stages.ingest.ingest`: ``t`` is the image index
-    (an ordinal, as float64), ``pose_z`` the plane height, and lights outside the plane rectangle
-    are flagged invalid and counted as ``outside_bounds``.
+    (an ordinal, as float64) and the poses hold the light directions (a far-light store).
 
     Parameters
     ----------
@@ -52,11 +51,9 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *, height: 
         The ``.lp`` light file.
     store : str or PathLike
         Where to create the Zarr store.
-    height : float, default 1.0
-        Height of the illumination plane above the object (plane units).
-    extent : float, optional
-        Half-width ``E`` of the square plane ``[-E, E]^2``; default ``2 * height`` (a light is
-        inside when ``max(|lx|, |ly|) <= 2 lz``: all lights above 26.6 degrees of elevation).
+    lights : sequence of int, optional
+        Keep only these lights (indices among the ``.lp`` file's lights above the horizon),
+        e.g. to fit without held-out lights; default all.
     overwrite : bool, default False
         Replace an existing store instead of refusing.
     progress : bool, default True
@@ -72,9 +69,14 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *, height: 
     """
     started = time.perf_counter()
     lp_path = Path(lp_path)
-    plane = _plane(height, extent)
     names, directions = read_lp(lp_path)
-    lights = rti_lights(directions, plane)
+    if lights is not None:
+        keep = np.asarray(lights, dtype=int)
+        if keep.size == 0 or keep.min() < 0 or keep.max() >= len(names):
+            raise LtmError(f"lights {list(lights)!r} must be indices of the {len(names)} "
+                           f"lights of {str(lp_path)}")
+        names, directions = [names[i] for i in keep], directions[keep]
+    lights = far_lights(directions)
     digest = hashlib.sha256()
     with new_store(store, overwrite=overwrite) as group:
         begin_stage(group, STAGE)
@@ -86,22 +88,13 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *, height: 
             digest.update(data)
             sink.add(decode_image(data, name), bool(valid), source=f"image {name!r}")
         # sha256 "images": of all image files concatenated in .lp order
-        acquisition = {"source": "rti", "lp": lp_path.name, "plane": plane.to_json(),
-                       "height": plane.height, "transfer": "srgb", "images": names,
+        acquisition = {"source": "rti", KIND_ATTR: FAR, "lp": lp_path.name,
+                       "lp_path": str(lp_path.resolve()), "plane": DISK.to_json(),
+                       "coordinates": coordinate_attrs(FAR), "transfer": "srgb", "images": names,
                        "frame_size": list(sink.shape),
                        "sha256": {"lp": sha256_file(lp_path), "images": digest.hexdigest()}}
         info = {"frame_size": list(sink.shape), "chunk_frames": chunk_frames}
         record = finish_ingest(group, sink, np.arange(sink.n, dtype=np.float64), lights,
                                acquisition=acquisition, info=info, started=started)
     return {**record, "store": str(store)}
-
-
-def _plane(height: float, extent: float | None) -> Plane:
-    if not (np.isfinite(height) and height > 0):
-        raise LtmError(f"height {height!r} must be a positive number (plane units)")
-    e = EXTENT_PER_HEIGHT * height if extent is None else extent
-    if not (np.isfinite(e) and e > 0):
-        raise LtmError(f"extent {extent!r} must be a positive number (plane units)")
-    return Plane(r=(-e, e), s=(-e, e), height=float(height))
-
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from functools import partial
 
 import dask.array as da
@@ -21,7 +21,7 @@ from distributed import Client, as_completed
 from tqdm.auto import tqdm
 
 from ltmstore.core import store as st
-from ltmstore.core.cluster import dask_client
+from ltmstore.core.cluster import dask_client, is_small
 from ltmstore.core.dims import (
     CHROMA_CHANNELS,
     CHROMA_LTM,
@@ -36,9 +36,12 @@ from ltmstore.core.dims import (
     Plane,
 )
 from ltmstore.core.errors import LtmError
+from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.confidence import expected_error, flag_unsupported
-from ltmstore.solve.select import Choice, choose_params
+from ltmstore.solve.select import AUTO, AUTO_METHODS, Choice, choose_method, choose_params
+from ltmstore.stages.plan import TilePlan, plan_tiles
+from ltmstore.stages.reconstruct_far import METHOD_MAP, far_models, reconstruct_far
 from ltmstore.stages.resample import (
     Binning,
     bin_frames,
@@ -53,62 +56,6 @@ TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at
 # A lattice given by the user that leaves K/M below this is refused unless forced: the solve
 # grows with M while all but a few cells are guessed (1000 x 1000 on a test capture: K/M 0.0003).
 MIN_RATIO = 0.02
-
-
-@dataclass(frozen=True)
-class TilePlan:
-    """Pixel tiles (the unit of work, one ``ltm`` shard each) and the lattice chunks (inner
-    chunks) of the store."""
-
-    image: tuple[int, int]
-    lattice: tuple[int, ...]
-    tile: tuple[int, int]
-    lattice_chunk: tuple[int, ...]
-
-    @property
-    def block(self) -> tuple[int, ...]:
-        """One tile of whole LTFs: the Dask chunk of ``samples`` and ``ltm``."""
-        return (*self.tile, *self.lattice)
-
-    @property
-    def shards(self) -> tuple[int, ...]:
-        """The block, rounded up along the lattice to whole inner chunks (Zarr requires it)."""
-        return (*self.tile, *(-(-n // c) * c for n, c in
-                              zip(self.lattice, self.lattice_chunk, strict=True)))
-
-    @property
-    def chunks(self) -> tuple[int, ...]:
-        return (*self.tile, *self.lattice_chunk)
-
-    @property
-    def grid(self) -> tuple[int, int]:
-        """Tiles along ``y`` and ``x``: the shape of the tile completion marks."""
-        return tuple(-(-n // t) for n, t in zip(self.image, self.tile, strict=True))
-
-    @property
-    def n_tiles(self) -> int:
-        return int(np.prod(self.grid))
-
-
-def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 32,
-               chunk_bytes: int = 64 * 1024, max_block_bytes: int = 64 * 2**20) -> TilePlan:
-    """Square pixel tiles of side ``tile`` and lattice chunks of about ``chunk_bytes``.
-
-    The lattice is split evenly along every axis (powers of two) until one inner chunk of a
-    tile, in float32, is no larger than ``chunk_bytes``: a point-light query then reads one or
-    a few inner chunks per tile instead of the whole shard. The tile side is halved while one
-    tile of whole LTFs would exceed ``max_block_bytes`` (6D lattices: a solver holds several
-    copies of its tile).
-    """
-    while tile > 1 and 4 * tile * tile * int(np.prod(lattice)) > max_block_bytes:
-        tile = -(-tile // 2)
-    tile_yx = (min(tile, image[0]), min(tile, image[1]))
-    chunk = list(lattice)
-    while 4 * np.prod(tile_yx) * np.prod(chunk) > chunk_bytes and max(chunk) > 1:
-        axis = int(np.argmax(chunk))
-        chunk[axis] = -(-chunk[axis] // 2)
-    return TilePlan(image=tuple(image), lattice=tuple(lattice), tile=tile_yx,
-                    lattice_chunk=tuple(chunk))
 
 
 def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray, *,
@@ -136,7 +83,13 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     start = time.perf_counter()
     (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
     batch = samples.reshape(-1, *samples.shape[2:])
-    choice = (choose_params(batch, geometry, method, params=params, seed=y0 * 65536 + x0)
+    seed = y0 * 65536 + x0
+    label, method_error = method, None
+    if method == AUTO:  # the method and model size first, then its regularisation
+        picked = choose_method(batch, geometry, seed=seed)
+        label, method, params = picked.label, picked.method, {**picked.params}
+        method_error = picked.errors.get(label)
+    choice = (choose_params(batch, geometry, method, params=params, seed=seed)
               if auto else Choice(params=params, errors={}))
     estimate = get_method(method)(batch, geometry, **choice.params)
     tile = samples.shape[:2]
@@ -146,9 +99,9 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
             batch, geometry, method, params=choice.params, folds=1).reshape(tile)
     out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
-    record = {"seconds": time.perf_counter() - start, "params": choice.params,
-              "heldout": choice.errors}
     ty, tx = block_info[0]["chunk-location"][:2]
+    record = {"seconds": time.perf_counter() - start, "method": label, "tile": [int(ty), int(tx)],
+              "params": choice.params, "heldout": choice.errors, "method_error": method_error}
     out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
     result = np.empty((1, 1), dtype=object)
     result[0, 0] = record
@@ -177,7 +130,7 @@ def _write_samples(group: zarr.Group, name: str, frames: da.Array, binning: Binn
 def reconstruct(path, *, client: Client | None = None, scheduler: str | None = None,
                 lattice: tuple[int, int] | None = None, delta_rs: float | None = None,
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
-                color: bool | None = None, tile: int = 32, overwrite: bool = False,
+                color: bool | None = None, tile: int | None = None, overwrite: bool = False,
                 resume: bool = True, force: bool = False, progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store.
 
@@ -199,7 +152,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     lattice, delta_rs : optional
         ``(R, S)`` cells, or the cell size; neither: :func:`choose_lattice`.
     method : str
-        A name from :data:`ltmstore.solve.METHODS`.
+        A name from :data:`ltmstore.solve.METHODS`. A far-light store (a classic RTI capture)
+        takes ``auto``, ``ptm``, ``hsh`` or ``rbf``, fitted at the exact light directions
+        (:mod:`ltmstore.stages.reconstruct_far`).
     params : dict, optional
         Keyword arguments of the method.
     auto : bool
@@ -208,8 +163,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     color : bool, optional
         Also reconstruct Cb and Cr LTMs (``ltm_cb``, ``ltm_cr``: a colour LTM). Default: when
         ingest found that the chroma varies with the light (``stages.ingest.chroma``).
-    tile : int
-        Pixel tile side: the unit of work and the ``ltm`` shard.
+    tile : int, optional
+        Pixel tile side: the unit of work and the ``ltm`` shard (default 32; 64 for a far-light
+        store).
     overwrite : bool
         Recompute an existing complete ``ltm``.
     resume : bool
@@ -228,17 +184,29 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     """
     if lattice is not None and delta_rs is not None:
         raise LtmError("give either --lattice or --delta-rs, not both")
-    if int(tile) != tile or tile < 1:
+    if tile is not None and (int(tile) != tile or tile < 1):
         raise LtmError(f"--tile {tile!r} must be a positive whole number of pixels")
-    get_method(method)
     path = os.path.abspath(path)  # Dask workers resolve a relative path in their own folder
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
+    far = light_kind(group.attrs.get("acquisition", {})) == FAR
+    if far:
+        far_models(method)
+        if delta_rs is not None:
+            raise LtmError("--delta-rs is a cell size on a plane; a far-light store takes "
+                           "--lattice RxS (cells over the disk of directions)")
+    elif method != AUTO:
+        get_method(method)
+    elif params:
+        raise LtmError(f"params {params!r} need a named method; auto chooses the method and its "
+                       "parameters per tile")
     st.check_writable(path)
     revise = bool(st.stages(group).get("reconstruct", {}).get("complete"))
     if revise and not overwrite:
         raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute it")
-    if color is None:
+    if far:
+        color = False  # relit colour comes from the frames at the fitted weights
+    elif color is None:
         color = not st.stages(group)["ingest"].get("chroma", {}).get("invariant", True)
     if color and FRAME_CHROMA not in group:
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
@@ -260,9 +228,15 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
 
 def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -> dict:
     group = st.open_group(path, mode="r+")
+    if light_kind(group.attrs["acquisition"]) == FAR:  # a thread pool is enough
+        key = run_key(**{k: run[k] for k in ("lattice", "delta_rs", "method", "params", "auto",
+                                             "color", "tile")})
+        return reconstruct_far(group, lattice=run["lattice"], method=run["method"],
+                               tile=run["tile"], progress=run["progress"], key=key)
+    run = {**run, "tile": run["tile"] or 32}
     if client is not None:
         return _reconstruct(group, client, **run)
-    with dask_client(scheduler) as own:
+    with dask_client(scheduler, small=is_small(group["frames"].nbytes)) as own:
         return _reconstruct(group, own, **run)
 
 
@@ -275,7 +249,7 @@ def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: 
     return json.loads(json.dumps({
         "lattice": None if lattice is None else [int(n) for n in lattice],
         "delta_rs": delta_rs, "method": method, "params": params, "auto": bool(auto),
-        "color": bool(color), "tile": int(tile),
+        "color": bool(color), "tile": None if tile is None else int(tile),
         "software": soft["version"]}, sort_keys=True, default=str))
 
 
@@ -388,13 +362,15 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     solve = partial(_solve_tiles, plan=plan, geometry=geometry, method=method, params=params,
                     client=client, progress=progress)
     records, solved = solve(group[SAMPLES], out, auto=auto)
+    write_method_map(group, records, plan, method)
     for c in CHROMA_CHANNELS if color else ():  # the colour LTM: same method, default params
         chroma_out = {LTM: group[CHROMA_LTM[c]], TILES: group[tiles_name(CHROMA_LTM[c])]}
         solved += solve(group[CHROMA_SAMPLES[c]], chroma_out, auto=False)[1]
     timings["solve_s"] = time.perf_counter() - start
     passes = 1 + len(CHROMA_CHANNELS) * bool(color)
     info = {**sampling, "method": method, "params": params, "auto": auto, "color": color,
-            "run": key, "chosen_per_tile": summarise_choices(records), "plan": asdict(plan),
+            "run": key, "chosen_per_tile": summarise_choices(records),
+            "methods_per_tile": summarise_methods(records), "plan": asdict(plan),
             "heldout_error": _mean_heldout(records), "tiles_total": plan.n_tiles * passes,
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
@@ -435,14 +411,31 @@ def check_solved(group: zarr.Group, name: str, plan: TilePlan, client: Client) -
                        "reconstruct stage stays incomplete")
 
 
+def write_method_map(group: zarr.Group, records: list[dict], plan: TilePlan,
+                     method: str) -> None:
+    """``method_map (tile_y, tile_x)``: the method each tile used (index into attr
+    ``methods``)."""
+    names = [label for label, _, _ in AUTO_METHODS] if method == AUTO else [method]
+    chosen = np.full(plan.grid, -1, dtype=np.int16)
+    for rec in records:
+        chosen[tuple(rec["tile"])] = names.index(rec.get("method", method))
+    arr = st.create_variable(group, METHOD_MAP, ("tile_y", "tile_x"), plan.grid, chunks=plan.grid,
+                             dtype=np.int16, fill_value=-1, attrs={
+                                 "methods": names, "tile": list(plan.tile),
+                                 "long_name": "method chosen per pixel tile (index into "
+                                              "'methods') by held-out error"})
+    arr[...] = chosen
+
+
 def _mean_heldout(records: list[dict]) -> float | None:
-    """Mean over tiles of the held-out relative error of the chosen parameters."""
+    """Mean over tiles of the held-out relative error of the chosen parameters (of the chosen
+    method, for a tile whose method had no parameters to choose)."""
     errors = []
     for rec in records:
         chosen = rec["params"]
-        for value, error in (rec.get("heldout") or {}).items():
-            if any(str(v) == str(value) for v in chosen.values()):
-                errors.append(error)
+        found = [error for value, error in (rec.get("heldout") or {}).items()
+                 if any(str(v) == str(value) for v in chosen.values())]
+        errors += found or ([rec["method_error"]] if rec.get("method_error") is not None else [])
     return float(np.mean(errors)) if errors else None
 
 
@@ -480,6 +473,12 @@ def _read_marks(marks: zarr.Array) -> np.ndarray:
             except Exception:  # noqa: BLE001
                 pass
         return out
+
+
+def summarise_methods(records: list[dict]) -> dict:
+    """How many tiles used each method (``auto`` chooses per tile)."""
+    labels = [str(rec.get("method")) for rec in records]
+    return {label: labels.count(label) for label in sorted(set(labels))}
 
 
 def summarise_choices(records: list[dict]) -> dict:

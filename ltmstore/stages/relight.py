@@ -1,9 +1,20 @@
-"""Lazy relighting: ``y = T l`` on the chunked LTM.
+"""Lazy relighting: ``y = T l`` on the chunked LTM, for near- and far-light stores alike.
 
-A point light anywhere on the plane is a bilinear weight over the four nearest lattice cells,
-so its image reads only the inner chunks that hold those cells. Any weight pattern over the
-lattice (an area light, an environment) is a weighted sum over all cells. Results are lazy
-Dask-backed :class:`xarray.DataArray` objects; nothing is read until they are computed.
+Near-light store (a handheld LED on a plane at height ``h``): a point light on the plane is a
+bilinear weight over the four nearest lattice cells, so its image reads only the inner chunks
+that hold those cells. A light beyond the plane (or a direction that meets the plane outside it,
+or never) is not clamped to the edge: its weights over the lattice are those of a hemispherical
+harmonics fit (order 2) of the whole lattice, evaluated at its direction (the model's own smooth
+extrapolation), with one :class:`LightExtrapolationWarning`. Any weight pattern over the lattice
+(an area light, an environment) is a weighted sum over all cells.
+
+Far-light store (a classic RTI capture, :mod:`ltmstore.stages.reconstruct_far`): a direction is
+evaluated by each tile's chosen model straight from the frames (no lattice in between; fitted,
+as there, to the sRGB-encoded colours and decoded to linear light); a
+``(r, s)`` light is the direction ``(r, s, sqrt(1 - r^2 - s^2))``.
+
+Relit values are never negative (clipped at 0). Results are lazy Dask-backed
+:class:`xarray.DataArray` objects; nothing is read until they are computed.
 
 A 6D LTM ``(y, x, r, s, p, q)`` is re-viewed the same way: a camera position ``(p, q)`` on the
 view plane is a bilinear weight over the four nearest view cells, so a (light, view) query reads
@@ -23,21 +34,43 @@ from ltmstore.core.dims import (
     CHROMA_LTM,
     COLOR,
     COLOR_CHANNELS,
+    FRAME_CHROMA,
+    FRAMES,
     LTM,
     P,
     Plane,
     Q,
+    T,
     rgb_from_ycbcr,
 )
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, LtmWarning
+from ltmstore.core.lights import (
+    FAR,
+    above_horizon,
+    direction_to_plane,
+    disk_to_direction,
+    light_kind,
+    normalise,
+    plane_to_direction,
+)
 from ltmstore.core.store import open_store
-from ltmstore.core.transfer import encode_images
+from ltmstore.core.transfer import encode_images, linear_to_srgb, srgb_to_linear
+from ltmstore.solve.hsh import hsh_basis
+from ltmstore.solve.lightfit import Model
+from ltmstore.stages.reconstruct_far import METHOD_MAP
 
 LIGHT = "light"
 
 
+FAR_FROM_DATA_DEG = 25.0  # a light further than this from every observed one gets a warning
+
+
 class LightClampWarning(UserWarning):
-    """A requested light lay outside the lattice and was moved to its nearest edge."""
+    """A requested camera position lay outside the view lattice and was moved to its edge."""
+
+
+class LightExtrapolationWarning(LtmWarning):
+    """A requested light lies far from every observation: its image is an extrapolation."""
 
 
 def _bilinear(centres: np.ndarray, value: float) -> tuple[int, int, float]:
@@ -64,23 +97,33 @@ def _cell_weights(a: tuple[str, np.ndarray, float],
             or [({dim_a: i0, dim_b: j0}, 1.0)])
 
 
-def light_weights(ltm: xr.DataArray, light: tuple[float, float],
-                  plane: Plane | None = None) -> list[tuple[dict, float]]:
-    """Bilinear weights of a point light: a list of ``({r: i, s: j}, weight)``.
-
-    A light outside the plane (or the lattice, when no plane is known) is clamped to the
-    nearest edge with a :class:`LightClampWarning`.
-    """
+def light_weights(ltm: xr.DataArray, light: tuple[float, float]) -> list[tuple[dict, float]]:
+    """Bilinear weights of a point light inside the lattice: ``[({r: i, s: j}, weight)]``."""
     r, s = (float(v) for v in light)
-    rc, sc = ltm["r"].values, ltm["s"].values
-    if plane is not None:
-        outside = not bool(plane.contains(np.array(r), np.array(s)))
-    else:
-        outside = not (rc[0] <= r <= rc[-1] and sc[0] <= s <= sc[-1])
-    if outside:
-        warnings.warn(f"light ({r:g}, {s:g}) lies outside the lattice; clamped to its edge",
-                      LightClampWarning, stacklevel=3)
-    return _cell_weights(("r", rc, r), ("s", sc, s))
+    return _cell_weights(("r", ltm["r"].values, r), ("s", ltm["s"].values, s))
+
+
+def extrapolation_weights(ltm: xr.DataArray, plane: Plane, directions: np.ndarray) -> np.ndarray:
+    """``(n, R, S)`` weights over a near-light lattice that evaluate, at unit ``directions``,
+    the least-squares order-2 hemispherical harmonics fit of every pixel's lattice values."""
+    rr, ss = np.meshgrid(ltm["r"].values, ltm["s"].values, indexing="ij")
+    cells = plane_to_direction(rr.ravel(), ss.ravel(), plane.height)
+    weights = hsh_basis(directions, 2) @ np.linalg.pinv(hsh_basis(cells, 2))
+    return weights.reshape(len(directions), *rr.shape)
+
+
+def _warn_far(directions: np.ndarray, observed: np.ndarray | None) -> None:
+    """One warning line for the lights far from every observed direction."""
+    if observed is None or not len(observed):
+        return
+    cosine = np.clip(directions @ observed.T, -1, 1).max(axis=1)
+    far = np.degrees(np.arccos(cosine)) > FAR_FROM_DATA_DEG
+    if far.any():
+        listed = ", ".join(f"({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f})" for d in directions[far][:3])
+        warnings.warn(f"{int(far.sum())} light(s) lie more than {FAR_FROM_DATA_DEG:g} degrees "
+                      f"from every captured light ({listed}{', ...' if far.sum() > 3 else ''}): "
+                      "extrapolated, distrust them (see expected_error)",
+                      LightExtrapolationWarning, stacklevel=3)
 
 
 def view_weights(ltm: xr.DataArray, view: tuple[float, float],
@@ -133,75 +176,202 @@ def _as_dataset(store) -> xr.Dataset:
     raise LtmError(f"store {store!r} must be a path or an xarray.Dataset")
 
 
-def relight(store, lights, *, view=None, color: bool = True) -> xr.DataArray:
+def relight(store, lights=None, *, directions=None, view=None,
+            color: bool = True) -> xr.DataArray:
     """Relight (and, for a 6D LTM, re-view) the LTM of a store, lazily.
 
     Parameters
     ----------
     store : path-like or xarray.Dataset
         A reconstructed store (or the dataset :func:`ltmstore.open_store` returns).
-    lights : array-like of shape (n, 2), or xarray.DataArray
-        Point lights ``(r, s)`` anywhere on the plane; or a weight pattern over the lattice
-        with dims ``(r, s)`` or ``(light, r, s)`` (area lights, environments).
+    lights : array-like of shape (n, 2), or xarray.DataArray, optional
+        Point lights ``(r, s)`` in the store's coordinates (a plane position for a near-light
+        store, anywhere on or beyond the plane; ``(lx, ly)`` inside the unit disk for a far-light
+        store); or, for a near-light store, a weight pattern over the lattice with dims
+        ``(r, s)`` or ``(light, r, s)`` (area lights, environments).
+    directions : array-like of shape (n, 3), optional
+        Instead of ``lights``: directions ``(lx, ly, lz)`` towards the lights (normalised here),
+        above the horizon; on a near-light store each becomes the plane position at the
+        plane's height.
     view : array-like of shape (2,) or (n, 2), optional
         6D LTMs only: camera position ``(p, q)`` on the view plane, one for all lights or one
         per light (a path where light and viewpoint both move); default the view plane's
         centre. Given for a 4D LTM it is an error.
     color : bool
         Return linear RGB (dim ``color``): from the colour LTM when the store has one
-        (``ltm_cb``, ``ltm_cr``), else from the stored chroma ratios; else luminance only.
+        (``ltm_cb``, ``ltm_cr``), the frames' chroma for a far-light store, else from the stored
+        chroma ratios; else luminance only.
 
     Returns
     -------
     xarray.DataArray
-        Dims ``(light, y, x[, color])``, linear light, Dask-backed (with coordinates
-        ``view_p, view_q`` for a 6D LTM).
+        Dims ``(light, y, x[, color])``, linear light, never negative, Dask-backed (with
+        coordinates ``view_p, view_q`` for a 6D LTM).
     """
     ds = _as_dataset(store)
     if LTM not in ds:
         raise LtmError("the store has no complete ltm; run `ltm reconstruct` first")
+    if (lights is None) == (directions is None):
+        raise LtmError("give either lights (r, s) or directions (lx, ly, lz), not both")
+    acq = ds.attrs.get("acquisition", {})
+    far = light_kind(acq) == FAR
     if isinstance(lights, xr.DataArray):
-        pattern = lights if LIGHT in lights.dims else lights.expand_dims(LIGHT)
-        views, vweights = _views(ds, view, pattern.sizes[LIGHT])
-
-        def apply(ltm: xr.DataArray) -> xr.DataArray:
-            if views is None:
-                return xr.dot(ltm, pattern, dim=["r", "s"])
-            if len(views) == 1:
-                return xr.dot(_point_image(ltm, vweights[0]), pattern, dim=["r", "s"])
-            return xr.concat([xr.dot(_point_image(ltm, vw), pattern.isel({LIGHT: k}),
-                                     dim=["r", "s"]) for k, vw in enumerate(vweights)],
-                             dim=LIGHT)
+        if far:
+            raise LtmError("a far-light store relights point lights or directions, not "
+                           "weight patterns over its lattice")
+        return _relight_pattern(ds, lights, view, color)
+    if directions is not None:
+        dirs = _above_horizon(directions)
     else:
         points = np.atleast_2d(np.asarray(lights, dtype=float))
-        if points.shape[-1] != 2 or not np.isfinite(points).all():
-            raise LtmError(f"lights {lights!r} must be finite (r, s) pairs")
-        acq = ds.attrs.get("acquisition", {})
-        plane = Plane.from_json(acq["plane"]) if "plane" in acq else None
-        weights = [light_weights(ds[LTM], p, plane) for p in points]
-        views, vweights = _views(ds, view, len(points))
+        if points.shape[-1] != 2 or points.ndim != 2 or not np.isfinite(points).all():
+            raise LtmError(f"lights {np.asarray(lights).tolist()!r} must be finite (r, s) pairs")
+        if far and (np.hypot(points[:, 0], points[:, 1]) >= 1).any():
+            raise LtmError(f"lights {points.tolist()!r} of a far-light store must lie inside the "
+                           "unit disk (r = lx, s = ly, r^2 + s^2 < 1)")
+        dirs = (disk_to_direction(points[:, 0], points[:, 1]) if far else
+                plane_to_direction(points[:, 0], points[:, 1], _plane(acq, ds[LTM]).height))
+    if far:
+        if view is not None:
+            raise LtmError("view given, but a far-light store has no view axes (p, q)")
+        return _relight_far(ds, dirs, color)
+    plane = _plane(acq, ds[LTM])
+    points = direction_to_plane(dirs, plane.height) if directions is not None else points
+    return _relight_near(ds, plane, points, dirs, view, color)
 
-        def apply(ltm: xr.DataArray) -> xr.DataArray:
-            if views is None:
-                image = xr.concat([_point_image(ltm, w) for w in weights], dim=LIGHT)
-            else:
-                at = [_point_image(ltm, vw) for vw in vweights]
-                image = xr.concat([_point_image(at[k % len(at)], w)
-                                   for k, w in enumerate(weights)], dim=LIGHT)
-            return image.assign_coords({LIGHT: np.arange(len(points)),
-                                        "light_r": (LIGHT, points[:, 0]),
-                                        "light_s": (LIGHT, points[:, 1])})
+
+def _plane(acq: dict, ltm: xr.DataArray) -> Plane:
+    """The store's plane; without one, the lattice's extent at unit height."""
+    if "plane" in acq:
+        return Plane.from_json(acq["plane"])
+    r, s = ltm["r"].values, ltm["s"].values
+    return Plane(r=(float(r[0]), float(r[-1])), s=(float(s[0]), float(s[-1])), height=1.0)
+
+
+def _above_horizon(directions) -> np.ndarray:
+    dirs = normalise(directions)
+    if not above_horizon(dirs).all():
+        bad = dirs[~above_horizon(dirs)][0]
+        raise LtmError(f"direction ({bad[0]:.3g}, {bad[1]:.3g}, {bad[2]:.3g}) is at or below "
+                       "the horizon; expected lz > 0 (a light above the object)")
+    return dirs
+
+
+def _observed_directions(ds: xr.Dataset) -> np.ndarray | None:
+    """Unit directions of the captured lights (None when the store holds no poses)."""
+    if "pose_valid" not in ds:
+        return None
+    valid = ds["pose_valid"].values.astype(bool)
+    r, s, z = (ds[k].values[valid] for k in ("pose_r", "pose_s", "pose_z"))
+    if light_kind(ds.attrs.get("acquisition", {})) == FAR:
+        return np.column_stack([r, s, z])
+    return normalise(np.column_stack([r, s, z]))
+
+
+def _relight_near(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.ndarray, view,
+                  color: bool) -> xr.DataArray:
+    """Point lights on a near-light store: bilinear inside the plane, extrapolated beyond."""
+    inside = np.isfinite(points).all(axis=1) & plane.contains(points[:, 0], points[:, 1])
+    _warn_far(dirs, _observed_directions(ds))
+    if not inside.all():
+        ltm = ds[LTM]
+        pattern = np.zeros((len(points), ltm.sizes["r"], ltm.sizes["s"]))
+        pattern[~inside] = extrapolation_weights(ltm, plane, dirs[~inside])
+        for k in np.flatnonzero(inside):
+            for cell, w in light_weights(ltm, points[k]):
+                pattern[k, cell["r"], cell["s"]] += w
+        image = _relight_pattern(ds, xr.DataArray(pattern, dims=(LIGHT, "r", "s")), view, color)
+    else:
+        image = _relight_points(ds, points, view, color)
+    return image.assign_coords(light_lx=(LIGHT, dirs[:, 0]), light_ly=(LIGHT, dirs[:, 1]),
+                               light_lz=(LIGHT, dirs[:, 2]))
+
+
+def _relight_points(ds: xr.Dataset, points: np.ndarray, view, color: bool) -> xr.DataArray:
+    weights = [light_weights(ds[LTM], p) for p in points]
+    views, vweights = _views(ds, view, len(points))
+
+    def apply(ltm: xr.DataArray) -> xr.DataArray:
+        if views is None:
+            image = xr.concat([_point_image(ltm, w) for w in weights], dim=LIGHT)
+        else:
+            at = [_point_image(ltm, vw) for vw in vweights]
+            image = xr.concat([_point_image(at[k % len(at)], w)
+                               for k, w in enumerate(weights)], dim=LIGHT)
+        return image.assign_coords({LIGHT: np.arange(len(points)),
+                                    "light_r": (LIGHT, points[:, 0]),
+                                    "light_s": (LIGHT, points[:, 1])})
+    return _finish(ds, apply, views, color)
+
+
+def _relight_pattern(ds: xr.Dataset, lights: xr.DataArray, view, color: bool) -> xr.DataArray:
+    pattern = lights if LIGHT in lights.dims else lights.expand_dims(LIGHT)
+    views, vweights = _views(ds, view, pattern.sizes[LIGHT])
+
+    def apply(ltm: xr.DataArray) -> xr.DataArray:
+        if views is None:
+            return xr.dot(ltm, pattern, dim=["r", "s"])
+        if len(views) == 1:
+            return xr.dot(_point_image(ltm, vweights[0]), pattern, dim=["r", "s"])
+        return xr.concat([xr.dot(_point_image(ltm, vw), pattern.isel({LIGHT: k}),
+                                 dim=["r", "s"]) for k, vw in enumerate(vweights)],
+                         dim=LIGHT)
+    return _finish(ds, apply, views, color)
+
+
+def _finish(ds: xr.Dataset, apply, views, color: bool) -> xr.DataArray:
+    """Luminance (and colour) images of ``apply`` on the store's LTMs, clipped at 0."""
     image = apply(ds[LTM]).transpose(LIGHT, "y", "x")
     if views is not None:
         n = image.sizes[LIGHT]
         image = image.assign_coords(view_p=(LIGHT, np.resize(views[:, 0], n)),
                                     view_q=(LIGHT, np.resize(views[:, 1], n)))
     if not color:
-        return image
+        return image.clip(min=0)
     if all(name in ds for name in CHROMA_LTM.values()):  # a colour LTM
         cb, cr = (apply(ds[CHROMA_LTM[c]]).transpose(LIGHT, "y", "x") for c in ("cb", "cr"))
-        return _stack_rgb(image, cb, cr)
-    return to_rgb(image, ds[CHROMA]) if CHROMA in ds else image
+        return _stack_rgb(image, cb, cr).clip(min=0)
+    return (to_rgb(image, ds[CHROMA]) if CHROMA in ds else image).clip(min=0)
+
+
+def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
+    """Directions on a far-light store: each tile's chosen model, evaluated from the frames."""
+    if METHOD_MAP not in ds:
+        raise LtmError("the far-light store has no method_map; run `ltm reconstruct` again "
+                       "with this version")
+    valid = ds["pose_valid"].values.astype(bool)
+    train = _observed_directions(ds)
+    _warn_far(dirs, train)
+    chosen = ds[METHOD_MAP]
+    ty, tx = chosen.attrs["tile"]
+    codes = chosen.values
+    per_pixel = np.repeat(np.repeat(codes, ty, 0), tx, 1)[: ds.sizes["y"], : ds.sizes["x"]]
+    per_pixel = xr.DataArray(per_pixel, dims=("y", "x"))
+    models = {int(c): Model(chosen.attrs["methods"][int(c)]) for c in np.unique(codes)}
+    weights = {c: xr.DataArray(m.weights(train, dirs).astype(np.float32), dims=(LIGHT, T))
+               for c, m in models.items()}
+
+    def apply(encoded: xr.DataArray) -> xr.DataArray:
+        """The models on sRGB-encoded frames, decoded to linear light."""
+        terms = [xr.dot(encoded, w, dim=T).where(per_pixel == c, 0) for c, w in weights.items()]
+        image = sum(terms[1:], terms[0]).transpose(LIGHT, "y", ...)
+        return _transfer(image.clip(min=0), srgb_to_linear).assign_coords(
+            {LIGHT: np.arange(len(dirs)), "light_lx": (LIGHT, dirs[:, 0]),
+             "light_ly": (LIGHT, dirs[:, 1]), "light_lz": (LIGHT, dirs[:, 2])})
+
+    used = {T: np.flatnonzero(valid)}
+    luminance = ds[FRAMES].isel(used).drop_vars(T)
+    if not color:
+        return apply(_transfer(luminance, linear_to_srgb))
+    cb, cr = (ds[FRAME_CHROMA].sel(channel=c, drop=True).isel(used).drop_vars(T)
+              .astype(np.float32) for c in ("cb", "cr"))
+    rgb = _stack_rgb(luminance, cb, cr).clip(min=0)
+    return apply(_transfer(rgb, linear_to_srgb)).transpose(LIGHT, "y", "x", COLOR)
+
+
+def _transfer(values: xr.DataArray, func) -> xr.DataArray:
+    """``func`` (an sRGB transfer function) applied lazily, block by block."""
+    return xr.apply_ufunc(func, values, dask="parallelized", output_dtypes=[np.float32])
 
 
 def to_rgb(luminance: xr.DataArray, chroma: xr.DataArray) -> xr.DataArray:
