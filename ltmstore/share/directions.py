@@ -6,7 +6,9 @@ convention). A near-light store (a handheld LED on a plane at height ``h``) is r
 lattice cells' directions from the object centre, ``(r, s, h) / |(r, s, h)|``
 (:meth:`ltmstore.solve.Geometry.directions`), so the export approximates the near light by one
 direction per cell, the same for every pixel (as RTIViewer and the web viewers assume). A store
-of far lights (directions stored directly) changes only :func:`light_samples`.
+of far lights (a classic RTI capture: ``r, s`` are the direction's ``lx, ly``) is read at each
+cell's direction :func:`~ltmstore.core.lights.disk_to_direction`, where its ``ltm`` was
+evaluated.
 
 The colours are read block by block straight from the Zarr arrays (whole shards, no Dask graph
 over the small inner chunks): a 96 x 96 px store on a 32 x 32 lattice reads in under a second.
@@ -30,6 +32,7 @@ from ltmstore.core.dims import (
     rgb_from_ycbcr,
 )
 from ltmstore.core.errors import LtmError
+from ltmstore.core.lights import FAR, disk_to_direction, light_kind
 from ltmstore.core.store import open_group, open_store
 from ltmstore.solve import Geometry
 
@@ -64,6 +67,14 @@ class LightSamples:
             cb, cr = (np.nan_to_num(a[rows, columns], nan=0.0).reshape(y.shape)
                       for a in self.chroma)
         return np.stack(rgb_from_ycbcr(y, cb, cr), axis=-1).astype(np.float32)
+
+
+def _directions(ds: xr.Dataset) -> np.ndarray:
+    """Unit light direction of each lattice cell, ``(M, 3)`` in C order of ``(r, s)``."""
+    if light_kind(ds.attrs.get("acquisition", {})) == FAR:
+        lx, ly = np.meshgrid(*(ds[LTM][d].values for d in LIGHT_DIMS), indexing="ij")
+        return disk_to_direction(lx.ravel(), ly.ravel())
+    return _geometry(ds).directions()
 
 
 def _geometry(ds: xr.Dataset) -> Geometry:
@@ -109,6 +120,6 @@ def light_samples(store: str | os.PathLike) -> LightSamples:
         raise LtmError(f"the store's ltm has dims {ds[LTM].dims}: export holds one view; "
                        "6D stores are not supported yet")
     group = open_group(store)
-    return LightSamples(directions=_geometry(ds).directions(),
+    return LightSamples(directions=_directions(ds),
                         shape=(ds.sizes["y"], ds.sizes["x"]), luminance=group[LTM],
                         chroma=_chroma(ds, group))
