@@ -293,8 +293,8 @@ COIN = Path(__file__).resolve().parents[2] / "shared" / "data" / "realrti-item9-
 def test_far_store_exports_at_its_directions(tmp_path):
     """A classic capture's store (far lights, ``r, s`` = ``lx, ly``) is exported at its cells'
     directions: the HSH file relit at 10 directions inside the captured lights agrees with
-    ``ltmstore.relight`` there (placing the cells on a plane instead gave 19.37 dB; HSH order 3 cannot hold all of
-    the rbf model relight evaluates)."""
+    ``ltmstore.relight`` there (placing the cells on a plane instead gave 19.37 dB; HSH order 3
+    cannot hold all of the rbf model that relight evaluates)."""
     from ltmstore.stages.ingest_rti import ingest_rti
     from ltmstore.stages.reconstruct import reconstruct
 
