@@ -140,7 +140,7 @@ def test_ltm_evaluate_reports_heldout_and_truth(flow_run, small_acquisition, tmp
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert report["truth"]["snr_y_db"] > SNR_THRESHOLD_DB
-    assert 0.05 < report["heldout"]["relative_error"] < 0.09  # measured 0.070
+    assert 0.035 < report["heldout"]["relative_error"] < 0.05  # measured 0.042 (auto: rbf)
     assert report["heldout"]["folds"] == 3
     assert maps.stat().st_size > 10_000
     no_truth = run_ltm("evaluate", flow_run[0], "--pixels", "64")
