@@ -5,6 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import zarr
+
+from ltmstore.core import store as st
+
+METHOD_MAP = "method_map"  # (tile_y, tile_x) index into its attribute "methods"
 
 
 @dataclass(frozen=True)
@@ -61,3 +66,15 @@ def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 
         chunk[axis] = -(-chunk[axis] // 2)
     return TilePlan(image=tuple(image), lattice=tuple(lattice), tile=tile_yx,
                     lattice_chunk=tuple(chunk))
+
+
+def write_method_map(group: zarr.Group, plan: TilePlan, chosen: np.ndarray, names: list[str],
+                     how: str) -> None:
+    """``method_map (tile_y, tile_x)``: the model each tile used, an index into the attribute
+    ``methods`` (``-1`` for a tile without one); ``how`` says how it was chosen."""
+    arr = st.create_variable(group, METHOD_MAP, ("tile_y", "tile_x"), plan.grid, chunks=plan.grid,
+                             dtype=np.int16, fill_value=-1, attrs={
+                                 "methods": list(names), "tile": list(plan.tile),
+                                 "long_name": f"model chosen per pixel tile (index into "
+                                              f"'methods') by {how}"})
+    arr[...] = chosen

@@ -40,8 +40,8 @@ from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.confidence import expected_error, flag_unsupported
 from ltmstore.solve.select import AUTO, AUTO_METHODS, Choice, choose_method, choose_params
-from ltmstore.stages.plan import TilePlan, plan_tiles
-from ltmstore.stages.reconstruct_far import METHOD_MAP, far_models, reconstruct_far
+from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
+from ltmstore.stages.reconstruct_far import far_models, reconstruct_far
 from ltmstore.stages.resample import (
     Binning,
     bin_frames,
@@ -362,7 +362,7 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     solve = partial(_solve_tiles, plan=plan, geometry=geometry, method=method, params=params,
                     client=client, progress=progress)
     records, solved = solve(group[SAMPLES], out, auto=auto)
-    write_method_map(group, records, plan, method)
+    record_method_map(group, records, plan, method)
     for c in CHROMA_CHANNELS if color else ():  # the colour LTM: same method, default params
         chroma_out = {LTM: group[CHROMA_LTM[c]], TILES: group[tiles_name(CHROMA_LTM[c])]}
         solved += solve(group[CHROMA_SAMPLES[c]], chroma_out, auto=False)[1]
@@ -411,20 +411,15 @@ def check_solved(group: zarr.Group, name: str, plan: TilePlan, client: Client) -
                        "reconstruct stage stays incomplete")
 
 
-def write_method_map(group: zarr.Group, records: list[dict], plan: TilePlan,
-                     method: str) -> None:
+def record_method_map(group: zarr.Group, records: list[dict], plan: TilePlan,
+                      method: str) -> None:
     """``method_map (tile_y, tile_x)``: the method each tile used (index into attr
     ``methods``)."""
     names = [label for label, _, _ in AUTO_METHODS] if method == AUTO else [method]
     chosen = np.full(plan.grid, -1, dtype=np.int16)
     for rec in records:
         chosen[tuple(rec["tile"])] = names.index(rec.get("method", method))
-    arr = st.create_variable(group, METHOD_MAP, ("tile_y", "tile_x"), plan.grid, chunks=plan.grid,
-                             dtype=np.int16, fill_value=-1, attrs={
-                                 "methods": names, "tile": list(plan.tile),
-                                 "long_name": "method chosen per pixel tile (index into "
-                                              "'methods') by held-out error"})
-    arr[...] = chosen
+    write_method_map(group, plan, chosen, names, "held-out error")
 
 
 def _mean_heldout(records: list[dict]) -> float | None:

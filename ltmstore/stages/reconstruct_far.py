@@ -41,9 +41,8 @@ from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.solve import Geometry
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
 from ltmstore.stages.ingest_rti import DISK
-from ltmstore.stages.plan import plan_tiles
+from ltmstore.stages.plan import plan_tiles, write_method_map
 
-METHOD_MAP = "method_map"  # (tile_y, tile_x) index into its attribute "methods"
 FAR_LATTICE = (8, 8)
 FAR_TILE = 64
 CHOICE_PIXELS = 1024  # pixels of a tile whose leave-one-out error chooses its model
@@ -127,12 +126,7 @@ def reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, metho
                   disable=not progress))
     timings["solve_s"] = time.perf_counter() - solve_start
     names = [m.name for m in models]
-    arr = st.create_variable(group, METHOD_MAP, ("tile_y", "tile_x"), plan.grid, chunks=plan.grid,
-                             dtype=np.int16, fill_value=-1, attrs={
-                                 "methods": names, "tile": list(plan.tile),
-                                 "long_name": "model chosen per pixel tile (index into "
-                                              "'methods') by leave-one-light-out error"})
-    arr[...] = chosen
+    write_method_map(group, plan, chosen, names, "leave-one-light-out error")
     counts = {names[i]: int(c) for i, c in zip(*np.unique(chosen, return_counts=True),
                                                 strict=True)}
     timings["resample_s"] = 0.0

@@ -57,7 +57,7 @@ from ltmstore.core.store import open_store
 from ltmstore.core.transfer import encode_images, linear_to_srgb, srgb_to_linear
 from ltmstore.solve.hsh import hsh_basis
 from ltmstore.solve.lightfit import Model
-from ltmstore.stages.reconstruct_far import METHOD_MAP
+from ltmstore.stages.plan import METHOD_MAP
 
 LIGHT = "light"
 
