@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -88,18 +89,26 @@ def test_a_second_writer_is_refused_in_one_line(acq, store):
         first.wait()
 
 
-def test_a_second_reconstruct_is_refused_in_one_line(store):
+@contextmanager
+def held_in_another_process(lock: str, path: Path):
+    """Hold ``lock(path)`` (``module:function``) in a second Python process; yields its pid."""
+    module, function = lock.split(":")
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from ltmstore.core.lock import locked\n"
-         "with locked(sys.argv[1]):\n print('locked', flush=True); time.sleep(60)",
-         str(store)], stdout=subprocess.PIPE, text=True)
+        [sys.executable, "-c", f"import sys, time; from {module} import {function}\n"
+         f"with {function}(sys.argv[1]):\n print('locked', flush=True); time.sleep(60)",
+         str(path)], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "locked"
-        one_line_error(run_ltm("reconstruct", store, "--lattice", "8x8"),
-                       f"is being written by process {holder.pid} on host")
+        yield holder.pid
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_a_second_reconstruct_is_refused_in_one_line(store):
+    with held_in_another_process("ltmstore.core.lock:locked", store) as pid:
+        one_line_error(run_ltm("reconstruct", store, "--lattice", "8x8"),
+                       f"is being written by process {pid} on host")
     assert "reconstruct" not in stages(open_group(store))
 
 
@@ -113,18 +122,9 @@ def test_the_lock_of_a_dead_process_is_taken_over(acq, store):
 def test_one_archive_run_per_root(tmp_path, prefect_harness):
     from flows.archive import reprocess_archive
 
-    holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from ltmstore.archive import archive_lock\n"
-         "with archive_lock(sys.argv[1]):\n print('locked', flush=True); time.sleep(60)",
-         str(tmp_path)], stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline().strip() == "locked"
-        with pytest.raises(LtmError, match=f"archive .* is being written by process "
-                                           f"{holder.pid}"):
+    with held_in_another_process("ltmstore.archive:archive_lock", tmp_path) as pid:
+        with pytest.raises(LtmError, match=f"archive .* is being written by process {pid}"):
             reprocess_archive.fn(str(tmp_path))
-    finally:
-        holder.kill()
-        holder.wait()
 
 
 def test_a_kill_between_the_renames_is_finished_by_the_next_command(acq, store):
