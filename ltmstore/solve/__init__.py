@@ -19,7 +19,7 @@ import numpy as np
 
 from ltmstore.core.dims import Lattice
 from ltmstore.core.errors import LtmError
-from ltmstore.solve import cs, cubic, hsh, kernel, lars, omp, ptm, rbf, svt
+from ltmstore.solve import blend, cs, cubic, hsh, kernel, lars, omp, ptm, rbf, svt
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,8 @@ Method = Callable[..., np.ndarray]
 
 METHODS: dict[str, Method] = {"cs": cs.solve, "lars": lars.solve, "omp": omp.solve,
                               "cubic": cubic.solve, "kernel": kernel.solve, "svt": svt.solve,
-                              "ptm": ptm.solve, "hsh": hsh.solve, "rbf": rbf.solve}
+                              "ptm": ptm.solve, "hsh": hsh.solve, "rbf": rbf.solve,
+                              "blend": blend.solve}
 DEFAULT_METHOD = "auto"  # per tile, by held-out error (ltmstore.solve.select.choose_method)
 
 

@@ -2,8 +2,9 @@
 than needed.
 
 :func:`choose_method` (``method="auto"``) cross-validates every entry of :data:`AUTO_METHODS` on
-the same held-out cells of a few dozen pixels of the tile and keeps the one with the lowest
-error; listed smallest model first, the smaller one wins a tie (within :data:`TIE`).
+the same held-out cells of a few dozen pixels of the tile, and blends of ``cs`` and ``rbf`` from
+the same held-out predictions, and keeps the one with the lowest error; listed smallest model
+first, the smaller one wins a tie (within :data:`TIE`).
 
 A method that can be tuned declares ``AUTO_GRID``, a mapping of one parameter to its candidate
 values (for ``cs`` the final threshold ``lam_min``: a larger one keeps fewer DCT coefficients, a
@@ -24,12 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ltmstore.solve import Geometry, get_method
-from ltmstore.solve.validate import heldout_error
+from ltmstore.solve.validate import HeldOut, heldout_error
 
 AUTO = "auto"
 # (label, method, fixed parameters), smallest model first
 AUTO_METHODS = (("ptm", "ptm", {}), ("hsh2", "hsh", {"order": 2}), ("hsh3", "hsh", {"order": 3}),
                 ("cs", "cs", {}), ("rbf", "rbf", {}), ("cubic", "cubic", {}))
+BLEND = "cs+rbf"  # label of the blend of cs and rbf that auto may choose (ltmstore.solve.blend)
+BLEND_WEIGHTS = (0.25, 0.5, 0.75)  # weights of cs tried (0 and 1 are rbf and cs themselves)
 AUTO_METHODS_6D = (("cs", "cs", {}),)  # the one method measured on 6-D lattices (bench_6d.py)
 TIE = 0.01  # relative held-out error within which the smaller model wins
 PIXELS = 48  # pixels of a tile that are cross-validated
@@ -89,21 +92,42 @@ class MethodChoice:
 
 def choose_method(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> MethodChoice:
     """The entry of :data:`AUTO_METHODS` with the lowest held-out error on a few pixels of the
-    batch (the same held-out cells for every candidate); the smaller model wins a tie. A 6-D
-    lattice keeps :data:`AUTO_METHODS_6D`."""
+    batch (the same held-out cells for every candidate), or a blend of ``cs`` and ``rbf``
+    (:data:`BLEND`) where a weight of :data:`BLEND_WEIGHTS` predicts those cells better still;
+    the smaller model wins a tie (the blend counts as the largest). A 6-D lattice keeps
+    :data:`AUTO_METHODS_6D`."""
     entries = AUTO_METHODS if geometry.ndim == 2 else AUTO_METHODS_6D
     if len(entries) == 1:
         (label, method, params), = entries
         return MethodChoice(label=label, method=method, params=dict(params), errors={})
     rng = np.random.default_rng(seed)
     rows = rng.choice(len(samples), size=min(PIXELS, len(samples)), replace=False)
-    errors = {label: heldout_error(samples[rows], geometry, method, folds=FOLDS, seed=seed,
-                                   params=params).relative_error
-              for label, method, params in AUTO_METHODS}
+    held = {label: heldout_error(samples[rows], geometry, method, folds=FOLDS, seed=seed,
+                                 params=params)
+            for label, method, params in AUTO_METHODS}
+    errors = {label: h.relative_error for label, h in held.items()}
+    weight, errors[BLEND] = _best_blend(held["cs"], held["rbf"],
+                                        samples[rows].reshape(len(rows), -1))
+    candidates = [*AUTO_METHODS, (BLEND, "blend", {"weight": weight})]
     best = min((e for e in errors.values() if np.isfinite(e)), default=np.inf)
-    label, method, params = next(entry for entry in AUTO_METHODS
+    label, method, params = next(entry for entry in candidates
                                  if not np.isfinite(best) or errors[entry[0]] <= best * (1 + TIE))
     return MethodChoice(label=label, method=method, params=dict(params), errors=errors)
+
+
+def _best_blend(cs: HeldOut, rbf: HeldOut, observed: np.ndarray) -> tuple[float, float]:
+    """The weight of ``cs`` in :data:`BLEND_WEIGHTS` whose blend best predicts the held-out
+    cells, and its relative error (both methods held out the same cells)."""
+    hidden = np.isfinite(cs.prediction) & np.isfinite(rbf.prediction)
+    truth = np.where(hidden, observed, 0.0)
+    norm = float(np.sqrt((truth**2).sum()))
+    if not hidden.any() or norm == 0:
+        return BLEND_WEIGHTS[0], float("nan")
+    errors = {w: float(np.sqrt((np.where(hidden, w * cs.prediction + (1 - w) * rbf.prediction
+                                          - observed, 0.0) ** 2).sum())) / norm
+              for w in BLEND_WEIGHTS}
+    weight = min(errors, key=errors.get)
+    return weight, errors[weight]
 
 
 def solve_auto(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> np.ndarray:

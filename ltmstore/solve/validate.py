@@ -48,6 +48,8 @@ class HeldOut:
         Mean number of held-out cells per pixel in each fold (whole numbers for a shared mask).
     shared_mask : bool
         Whether all pixels had the same mask (and so held out the same cells).
+    prediction : ndarray, shape (n, cells)
+        The method's prediction at each held-out cell (NaN at cells never held out).
     """
 
     rms: np.ndarray
@@ -57,6 +59,7 @@ class HeldOut:
     folds: int
     cells_per_fold: tuple[float, ...]
     shared_mask: bool
+    prediction: np.ndarray
 
 
 def check_split(folds: int, fraction: float | None, block: int) -> float:
@@ -160,6 +163,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
     mask = np.isfinite(samples)
     fold = split_folds(mask, folds, fraction=fraction, block=block, seed=seed)
     sq, count = np.zeros(n), np.zeros(n, dtype=np.int64)
+    prediction = np.full((n, mask[0].size), np.nan)
     ref = res = 0.0
     per_fold = []
     for f in range(folds):
@@ -172,6 +176,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         pred = np.asarray(solve(train, geometry, **params), dtype=np.float64).reshape(len(rows), -1)
         truth = samples[rows].reshape(len(rows), -1).astype(np.float64)
         err = np.where(hidden[rows], pred - truth, 0.0)
+        prediction[rows] = np.where(hidden[rows], pred, prediction[rows])
         sq[rows] += (err**2).sum(axis=1)
         count[rows] += hidden[rows].sum(axis=1)
         ref += float((np.where(hidden[rows], truth, 0.0) ** 2).sum())
@@ -181,7 +186,8 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         rel = float(np.sqrt(res / ref)) if ref > 0 else float("nan")
         snr = float(10 * np.log10(ref / max(res, 1e-300))) if ref > 0 else float("nan")
     return HeldOut(rms=rms, count=count, relative_error=rel, snr_db=snr, folds=int(folds),
-                   cells_per_fold=tuple(per_fold), shared_mask=bool((mask == mask[:1]).all()))
+                   cells_per_fold=tuple(per_fold), shared_mask=bool((mask == mask[:1]).all()),
+                   prediction=prediction)
 
 
 def observed_range(samples: np.ndarray) -> np.ndarray:

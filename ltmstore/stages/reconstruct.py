@@ -39,7 +39,7 @@ from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.confidence import expected_error, flag_unsupported
-from ltmstore.solve.select import AUTO, AUTO_METHODS, Choice, choose_method, choose_params
+from ltmstore.solve.select import AUTO, AUTO_METHODS, BLEND, Choice, choose_method, choose_params
 from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
 from ltmstore.stages.reconstruct_far import far_models, reconstruct_far
 from ltmstore.stages.resample import (
@@ -415,7 +415,7 @@ def record_method_map(group: zarr.Group, records: list[dict], plan: TilePlan,
                       method: str) -> None:
     """``method_map (tile_y, tile_x)``: the method each tile used (index into attr
     ``methods``)."""
-    names = [label for label, _, _ in AUTO_METHODS] if method == AUTO else [method]
+    names = [*(label for label, _, _ in AUTO_METHODS), BLEND] if method == AUTO else [method]
     chosen = np.full(plan.grid, -1, dtype=np.int16)
     for rec in records:
         chosen[tuple(rec["tile"])] = names.index(rec.get("method", method))

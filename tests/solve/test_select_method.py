@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ltmstore.solve import Geometry
 from ltmstore.solve.ptm import ptm_basis
-from ltmstore.solve.select import AUTO_METHODS, choose_method
+from ltmstore.solve.select import AUTO_METHODS, BLEND, choose_method
 
 
 def batch(values_of, n=24, shape=(12, 12), observed=0.4, seed=0):
@@ -22,7 +23,7 @@ def test_a_ptm_scene_chooses_ptm():
     samples, geometry = batch(lambda g, c: c @ ptm_basis(g.directions()).T + 5)
     choice = choose_method(samples, geometry, seed=1)
     assert choice.label == "ptm", choice.errors
-    assert set(choice.errors) == {label for label, _, _ in AUTO_METHODS}
+    assert set(choice.errors) == {label for label, _, _ in AUTO_METHODS} | {BLEND}
 
 
 def test_a_sharp_scene_leaves_the_global_fits():
@@ -33,3 +34,28 @@ def test_a_sharp_scene_leaves_the_global_fits():
     samples, geometry = batch(sharp, observed=0.7)
     choice = choose_method(samples, geometry, seed=2)
     assert choice.label not in ("ptm", "hsh2"), choice.errors
+
+
+def test_the_blend_weight_is_the_one_that_predicts_the_held_out_cells():
+    from ltmstore.solve.select import _best_blend
+    from ltmstore.solve.validate import HeldOut
+
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(2, 8, 20))
+    a[:, ::3] = b[:, ::3] = np.nan  # cells never held out
+    held = [HeldOut(rms=None, count=None, relative_error=np.nan, snr_db=np.nan, folds=2,
+                    cells_per_fold=(), shared_mask=True, prediction=p) for p in (a, b)]
+    weight, error = _best_blend(*held, 0.75 * np.nan_to_num(a) + 0.25 * np.nan_to_num(b))
+    assert weight == 0.75 and error < 1e-12
+
+
+def test_blend_ends_are_its_two_methods():
+    from ltmstore.core.errors import LtmError
+    from ltmstore.solve import get_method
+
+    samples, geometry = batch(lambda g, c: c @ ptm_basis(g.directions()).T + 5)
+    for weight, method in ((1.0, "cs"), (0.0, "rbf")):
+        np.testing.assert_array_equal(get_method("blend")(samples, geometry, weight=weight),
+                                      get_method(method)(samples, geometry))
+    with pytest.raises(LtmError, match="blend weight 1.5"):
+        get_method("blend")(samples, geometry, weight=1.5)
