@@ -1,0 +1,133 @@
+"""``ltm view``: the real command serving the session store, driven in headless Chromium."""
+
+from __future__ import annotations
+
+import io
+import signal
+import subprocess
+
+import numpy as np
+import psutil
+import pytest
+from browser import Browser
+from PIL import Image
+from pipeline_helpers import BIN
+
+from ltmstore.cli import main
+from ltmstore.core.store import open_store
+from ltmstore.core.transfer import encode_images
+from ltmstore.stages.relight import relight
+
+PIXELS_JS = """(() => {
+  const img = document.getElementById("image");
+  const c = document.createElement("canvas");
+  c.width = img.naturalWidth; c.height = img.naturalHeight;
+  const g = c.getContext("2d");
+  g.drawImage(img, 0, 0);
+  return {w: c.width, h: c.height,
+          data: Array.from(g.getImageData(0, 0, c.width, c.height).data)};
+})()"""
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = np.mean((a.astype(float) - b.astype(float)) ** 2)
+    return float("inf") if mse == 0 else 10 * np.log10(255**2 / mse)
+
+
+def cli_relight(store, light: tuple[float, float]) -> np.ndarray:
+    """The 8-bit image ``ltm relight STORE --light R,S`` writes (its own steps)."""
+    ds = open_store(store)
+    images = relight(ds, [light]).sum("light").values[None]
+    return encode_images(images, ds.attrs["acquisition"].get("transfer", "srgb"))[0]
+
+
+def page_pixels(browser: Browser) -> np.ndarray:
+    """The <img>'s pixels, RGB, read back through a canvas."""
+    got = browser.evaluate(PIXELS_JS)
+    return np.array(got["data"], dtype=np.uint8).reshape(got["h"], got["w"], 4)[..., :3]
+
+
+def move_light(browser: Browser, u: float, v: float) -> dict:
+    """Move the pointer to ``(u, v)`` over the image; wait for that image; its light."""
+    rect = browser.evaluate("JSON.parse(JSON.stringify("
+                            "document.getElementById('image').getBoundingClientRect()))")
+    browser.move_mouse(rect["left"] + (u + 1) / 2 * rect["width"],
+                       rect["top"] + (1 - v) / 2 * rect["height"])
+    return browser.wait_for(
+        f"(() => {{ const l = window.ltmView.last; return !window.ltmView.inflight && l && "
+        f"Math.abs(l.light.u - {u}) < 0.02 && Math.abs(l.light.v - {v}) < 0.02 && l.light; }})()")
+
+
+@pytest.fixture(scope="module")
+def served(small_store):
+    """``ltm view small_store`` as a real process: yields (process, URL)."""
+    proc = subprocess.Popen([BIN / "ltm", "view", str(small_store)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert "http://127.0.0.1:" in line, (line, proc.poll() and proc.stderr.read())
+        yield proc, line.split(" at ")[1].split()[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_view_page_relights_as_ltm_relight_under_the_pointer(served, small_store):
+    proc, url = served
+    with Browser() as browser:
+        browser.goto(url)
+        browser.wait_for("window.ltmView.ready")
+        first = page_pixels(browser)  # the light at the plane's centre
+        light = move_light(browser, 0.5, -0.25)
+        assert light["r"] == pytest.approx(0.1, abs=0.005)  # plane r in [-0.2, 0.2]
+        assert light["s"] == pytest.approx(-0.05, abs=0.005)
+        shown = page_pixels(browser)
+        expected = cli_relight(small_store, (light["r"], light["s"]))
+        assert shown.shape == expected.shape == (32, 32, 3)
+        assert psnr(shown, expected) > 60  # measured: inf (the same 8-bit image)
+        assert psnr(first, expected) < 30  # the light moved: measured 21.6 dB
+        rect = browser.evaluate("JSON.parse(JSON.stringify("
+                                "document.getElementById('image').getBoundingClientRect()))")
+        shot = np.asarray(Image.open(io.BytesIO(browser.screenshot(
+            {k: rect[k] for k in ("x", "y", "width", "height")}))).convert("RGB"))
+        rows = (np.arange(shot.shape[0]) * 32 // shot.shape[0])
+        cols = (np.arange(shot.shape[1]) * 32 // shot.shape[1])
+        assert psnr(shot, expected[rows][:, cols]) > 30  # measured: inf (21 px per pixel)
+    listening = [c.laddr for c in psutil.Process(proc.pid).net_connections(kind="inet")
+                 if c.status == psutil.CONN_LISTEN]
+    assert listening and all(a.ip == "127.0.0.1" for a in listening), listening
+
+
+def test_view_refuses_other_hosts_and_missing_stores(small_store, tmp_path, capsys):
+    assert main(["view", str(small_store), "--host", "0.0.0.0"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "'0.0.0.0' is not a loopback" in err
+    assert main(["view", str(tmp_path / "none.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and err.startswith("ltm: error:") and "none.zarr" in err
+
+
+def test_expected_error_overlay_and_area_light_are_served(served):
+    """The overlay PNG and an area light through the page's own requests."""
+    _, url = served
+    with Browser(600, 400) as browser:
+        browser.goto(url)
+        browser.wait_for("window.ltmView.ready")
+        assert browser.evaluate("!document.getElementById('error-set').hidden")
+        browser.evaluate("document.getElementById('error').click()")
+        browser.wait_for("document.getElementById('overlay').complete && "
+                         "document.getElementById('overlay').naturalWidth === 32")
+        browser.evaluate("document.querySelector('input[value=area]').click()")
+        light = browser.wait_for("(() => { const l = window.ltmView.last; return "
+                                 "!window.ltmView.inflight && l.light.radius > 0 && l.light; })()")
+        assert light["radius"] == pytest.approx(0.02)  # 0.1 of the plane's half width, 0.2 m
+
+
+def test_view_stops_cleanly_on_ctrl_c(served):
+    """Last in this file: it stops the module's server."""
+    proc, _ = served
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0
+    assert err.strip().splitlines() == ["ltm view: stopped"]
