@@ -125,9 +125,34 @@ def test_expected_error_overlay_and_area_light_are_served(served):
 
 
 def test_view_stops_cleanly_on_ctrl_c(served):
-    """Last in this file: it stops the module's server."""
+    """After the other tests of `served`: it stops the module's server."""
     proc, _ = served
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=10)
     assert proc.returncode == 0
     assert err.strip().splitlines() == ["ltm view: stopped"]
+
+
+def test_far_light_store_maps_the_pointer_to_a_direction(tmp_path):
+    """A classic RTI capture: the image spans the unit disk of (lx, ly); the rim stays above
+    the horizon; an area light is a cone of directions."""
+    from test_rti import write_capture
+
+    from ltmstore.core.lights import elevation_azimuth
+    from ltmstore.share.view import Viewer
+    from ltmstore.stages.ingest_rti import ingest_rti
+    from ltmstore.stages.reconstruct import reconstruct
+
+    lights = elevation_azimuth(np.repeat([30, 50, 75], 6), np.tile(np.arange(0, 360, 60), 3))
+    ingest_rti(write_capture(tmp_path / "cap", dirs=lights), tmp_path / "s.zarr", progress=False)
+    reconstruct(tmp_path / "s.zarr", progress=False)
+    viewer = Viewer(tmp_path / "s.zarr")
+    light = viewer.light_at(0.3, -0.2)
+    assert (light.r, light.s) == pytest.approx((0.3, -0.2))
+    body, _ = viewer.render_png(light)
+    shown = np.asarray(Image.open(io.BytesIO(body)))
+    assert psnr(shown, cli_relight(tmp_path / "s.zarr", (0.3, -0.2))) == float("inf")
+    rim = viewer.light_at(1, 1)
+    assert np.hypot(rim.r, rim.s) == pytest.approx(0.98)
+    area, _ = viewer.render_linear(viewer.light_at(0.3, -0.2, radius=0.3))
+    assert np.isfinite(area).all() and (area >= 0).all() and area.shape == (6, 5, 3)
