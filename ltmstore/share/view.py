@@ -31,6 +31,7 @@ import socket
 import threading
 import time
 import warnings
+from collections import OrderedDict
 from dataclasses import dataclass
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -55,6 +56,7 @@ STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
 DISK_EDGE = 0.98  # far-light stores: (lx, ly) kept inside this radius (a light above the horizon)
 AREA_SUBSAMPLES = 4  # per lattice cell and axis, for the coverage of a disk light
 CACHED_BYTES = 32 * 2**20  # variables up to this size are held in memory
+CACHE_BYTES = 768 * 2**20  # LTM blocks kept in memory (least recently used out)
 FAR_AREA_SAMPLES = 5  # directions per axis of a far-light area light's square grid
 
 
@@ -235,7 +237,64 @@ def wide_chunks(ds: xr.Dataset, path: str | os.PathLike) -> xr.Dataset:
         warnings.simplefilter("ignore")  # the chunks of other variables are not used
         wide = xr.open_zarr(path, consolidated=False, chunks={**inner, "y": -1, "x": -1},
                             drop_variables=[n for n in ds.variables if n not in keep])
-    return ds.assign({n: wide[n] for n in names})
+    return ds.assign({n: cached(wide[n]) for n in names})
+
+
+class BlockCache:
+    """A Dask-chunked variable read whole block by block and kept in memory, least recently
+    used out past ``budget`` bytes: a pointer moving within a lattice block reads nothing.
+
+    An array-like for :func:`dask.array.from_array` (indexing within one block).
+    """
+
+    def __init__(self, var: xr.DataArray, budget: int) -> None:
+        self.var, self.budget = var, budget
+        self.shape, self.dtype, self.ndim = var.shape, var.dtype, var.ndim
+        self.starts = [np.cumsum((0, *c)) for c in var.data.chunks]
+        self.blocks: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self.lock = threading.Lock()
+
+    def _block(self, index: tuple[int, ...]) -> np.ndarray:
+        with self.lock:
+            if index in self.blocks:
+                self.blocks.move_to_end(index)
+                return self.blocks[index]
+        block = np.asarray(self.var.data.blocks[index].compute(scheduler="synchronous"))
+        with self.lock:
+            self.blocks[index] = block
+            while sum(b.nbytes for b in self.blocks.values()) > self.budget and \
+                    len(self.blocks) > 1:
+                self.blocks.popitem(last=False)
+        return block
+
+    def __getitem__(self, key) -> np.ndarray:
+        key = key if isinstance(key, tuple) else (key,)
+        key = key + (slice(None),) * (self.ndim - len(key))
+        index, local = [], []
+        for k, starts in zip(key, self.starts, strict=True):
+            if isinstance(k, slice) and k.step in (None, 1):
+                lo = starts[0] if k.start is None else k.start
+                hi = starts[-1] if k.stop is None else k.stop
+            elif isinstance(k, int | np.integer):
+                lo = hi = int(k)
+            else:
+                return np.asarray(self.var.data[key].compute(scheduler="synchronous"))
+            i = int(np.searchsorted(starts, lo, side="right") - 1)
+            if not starts[i] <= hi <= starts[i + 1]:
+                return np.asarray(self.var.data[key].compute(scheduler="synchronous"))
+            index.append(i)
+            local.append(lo - starts[i] if isinstance(k, int | np.integer) else
+                         slice(lo - starts[i], hi - starts[i]))
+        return self._block(tuple(index))[tuple(local)]
+
+
+def cached(var: xr.DataArray, budget: int = CACHE_BYTES) -> xr.DataArray:
+    """``var`` (Dask-backed) with its blocks read through a :class:`BlockCache`."""
+    import dask.array as da
+
+    data = da.from_array(BlockCache(var, budget), chunks=var.data.chunks, asarray=False,
+                         fancy=False, name=f"ltm-view-{var.name}-{id(var)}")
+    return var.copy(data=data)
 
 
 def in_memory(ds: xr.Dataset, limit: int = CACHED_BYTES) -> xr.Dataset:
