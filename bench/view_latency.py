@@ -4,10 +4,12 @@ Run: ``python bench/view_latency.py STORE`` (a reconstructed store; the README's
 Toys-size store of ``bench/scale_bench.py --config toys``: 400 x 400 px, 50 x 50 lattice).
 Starts ``ltm view STORE`` as a real process, loads the page in headless Chromium (Debian's
 ``chromium``; the DevTools driver of ``tests/browser.py``), moves the pointer to ``--repeats``
-light positions one after another (each waits for its image) and records the page's round trip
-(request sent to image decoded, ``performance.now``) and the server's render time; then the
-same with an area light; then a fast sweep (pointer moved every 10 ms for 3 s: the page keeps
-one request in flight and sends the latest position) to count images shown per second.
+random light positions one after another (each waits for its image: new lattice blocks, read
+from the store) and records the page's round trip (request sent to image decoded,
+``performance.now``) and the server's render time; then steps of 1/200 of the plane's width (half
+a cell of a 50 x 50 lattice: mostly blocks the server already holds); then an area light; then a
+fast sweep (pointer moved every 10 ms for 3 s: the page keeps one request in flight and sends the
+latest position) to count images shown per second.
 Writes ``view_latency.json`` and a screenshot ``viewer.png`` into ``--out``.
 """
 
@@ -92,6 +94,8 @@ def main() -> None:
             browser.wait_for("window.ltmView.ready", timeout=60)
             info = json.loads(browser.evaluate("fetch('info').then(r => r.text())"))
             point = timed_moves(browser, points)
+            steps = timed_moves(browser, np.column_stack([0.3 + 0.01 * np.arange(args.repeats),
+                                                          np.full(args.repeats, 0.3)]))
             fast = sweep(browser)
             browser.evaluate("document.querySelector('input[value=area]').click()")
             browser.wait_for("!window.ltmView.inflight && window.ltmView.last.light.radius > 0",
@@ -110,7 +114,9 @@ def main() -> None:
         "command": f"python bench/view_latency.py {args.store} --repeats {args.repeats}",
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
         "store": {k: info[k] for k in ("width", "height", "lattice", "far", "views")},
-        "server_startup_s": startup, "point_light": point, "area_light_radius_0.1": area,
+        "load_average_1min_at_end": os.getloadavg()[0],
+        "server_startup_s": startup, "point_light_random": point,
+        "point_light_small_steps": steps, "area_light_radius_0.1": area,
         "sweep": fast,
     }
     (out / "view_latency.json").write_text(json.dumps(result, indent=2) + "\n")

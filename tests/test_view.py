@@ -16,6 +16,7 @@ from pipeline_helpers import BIN
 from ltmstore.cli import main
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import encode_images
+from ltmstore.stages.ingest import ingest
 from ltmstore.stages.relight import relight
 
 PIXELS_JS = """(() => {
@@ -99,13 +100,18 @@ def test_view_page_relights_as_ltm_relight_under_the_pointer(served, small_store
     assert listening and all(a.ip == "127.0.0.1" for a in listening), listening
 
 
-def test_view_refuses_other_hosts_and_missing_stores(small_store, tmp_path, capsys):
+def test_view_refuses_other_hosts_and_missing_stores(small_store, small_acquisition, tmp_path,
+                                                     capsys):
     assert main(["view", str(small_store), "--host", "0.0.0.0"]) == 2
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1 and "'0.0.0.0' is not a loopback" in err
     assert main(["view", str(tmp_path / "none.zarr")]) == 2
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1 and err.startswith("ltm: error:") and "none.zarr" in err
+    ingest(small_acquisition, tmp_path / "ingested.zarr", progress=False)
+    assert main(["view", str(tmp_path / "ingested.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "has no complete ltm" in err
 
 
 def test_expected_error_overlay_and_area_light_are_served(served):
@@ -156,3 +162,12 @@ def test_far_light_store_maps_the_pointer_to_a_direction(tmp_path):
     assert np.hypot(rim.r, rim.s) == pytest.approx(0.98)
     area, _ = viewer.render_linear(viewer.light_at(0.3, -0.2, radius=0.3))
     assert np.isfinite(area).all() and (area >= 0).all() and area.shape == (6, 5, 3)
+
+
+def test_view_has_help(capsys):
+    from ltmstore.cli import build_parser
+
+    with pytest.raises(SystemExit) as exc:
+        build_parser().parse_args(["view", "--help"])
+    out = capsys.readouterr().out
+    assert exc.value.code == 0 and "usage: ltm view" in out and "--port" in out

@@ -96,10 +96,11 @@ class Viewer:
 
     def __init__(self, store: str | os.PathLike) -> None:
         self.path = Path(store)
-        self.ds = in_memory(wide_chunks(open_store(store), store))
-        if LTM not in self.ds:
+        ds = open_store(store)
+        if LTM not in ds:
             raise LtmError(f"store {str(store)!r} has no complete ltm; run `ltm reconstruct` "
                            "first")
+        self.ds = in_memory(wide_chunks(ds, store))
         acq = self.ds.attrs.get("acquisition", {})
         self.far = light_kind(acq) == FAR
         self.transfer = acq.get("transfer", "srgb")
@@ -369,6 +370,10 @@ class Handler(BaseHTTPRequestHandler):
                                   {"X-Ltm-Error-Max": f"{top:.6g}"})
         except LtmError as exc:
             return self._send(HTTPStatus.BAD_REQUEST, str(exc).encode(), "text/plain")
+        except ValueError as exc:  # a chunk that fails its checksum, found while reading
+            return self._send(HTTPStatus.INTERNAL_SERVER_ERROR,
+                              f"store {str(viewer.path)!r} cannot be read: {exc}".encode(),
+                              "text/plain")
         self._send(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
 
     def _host_ok(self) -> bool:
