@@ -29,6 +29,8 @@ PIXELS_JS = """(() => {
           data: Array.from(g.getImageData(0, 0, c.width, c.height).data)};
 })()"""
 
+RECT_JS = "JSON.parse(JSON.stringify(document.getElementById('image').getBoundingClientRect()))"
+
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     mse = np.mean((a.astype(float) - b.astype(float)) ** 2)
@@ -50,8 +52,7 @@ def page_pixels(browser: Browser) -> np.ndarray:
 
 def move_light(browser: Browser, u: float, v: float) -> dict:
     """Move the pointer to ``(u, v)`` over the image; wait for that image; its light."""
-    rect = browser.evaluate("JSON.parse(JSON.stringify("
-                            "document.getElementById('image').getBoundingClientRect()))")
+    rect = browser.evaluate(RECT_JS)
     browser.move_mouse(rect["left"] + (u + 1) / 2 * rect["width"],
                        rect["top"] + (1 - v) / 2 * rect["height"])
     return browser.wait_for(
@@ -88,8 +89,7 @@ def test_view_page_relights_as_ltm_relight_under_the_pointer(served, small_store
         assert shown.shape == expected.shape == (32, 32, 3)
         assert psnr(shown, expected) > 60  # measured: inf (the same 8-bit image)
         assert psnr(first, expected) < 30  # the light moved: measured 21.6 dB
-        rect = browser.evaluate("JSON.parse(JSON.stringify("
-                                "document.getElementById('image').getBoundingClientRect()))")
+        rect = browser.evaluate(RECT_JS)
         shot = np.asarray(Image.open(io.BytesIO(browser.screenshot(
             {k: rect[k] for k in ("x", "y", "width", "height")}))).convert("RGB"))
         rows = (np.arange(shot.shape[0]) * 32 // shot.shape[0])
@@ -128,6 +128,32 @@ def test_expected_error_overlay_and_area_light_are_served(served):
         light = browser.wait_for("(() => { const l = window.ltmView.last; return "
                                  "!window.ltmView.inflight && l.light.radius > 0 && l.light; })()")
         assert light["radius"] == pytest.approx(0.02)  # 0.1 of the plane's half width, 0.2 m
+
+
+def test_zoom_and_pan_keep_the_light_under_the_pointer(served):
+    """The wheel zooms about the pointer, a drag pans without moving the light, and the light
+    is still the plane point under the pointer."""
+    _, url = served
+    with Browser(600, 400) as browser:
+        browser.goto(url)
+        browser.wait_for("window.ltmView.ready")
+        before = browser.evaluate(RECT_JS)
+        x, y = before["left"] + before["width"] / 2, before["top"] + before["height"] / 2
+        browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=x, y=y, deltaX=0,
+                     deltaY=-400)
+        zoomed = browser.wait_for(f"(() => {{ const r = {RECT_JS}; "
+                                  f"return r.width > {1.5 * before['width']} && r; }})()")
+        assert zoomed["left"] + zoomed["width"] / 2 == pytest.approx(x, abs=1)
+        sent = browser.evaluate("window.ltmView.requests")
+        for kind, dx in (("mousePressed", 0), ("mouseMoved", 40), ("mouseReleased", 40)):
+            browser.call("Input.dispatchMouseEvent", type=kind, x=x + dx, y=y, button="left",
+                         buttons=1 if kind != "mouseReleased" else 0, clickCount=1)
+        panned = browser.wait_for(f"(() => {{ const r = {RECT_JS}; "
+                                  f"return r.left > {zoomed['left'] + 39} && r; }})()")
+        assert panned["left"] == pytest.approx(zoomed["left"] + 40, abs=1)
+        assert browser.evaluate("window.ltmView.requests") == sent  # the drag moved no light
+        light = move_light(browser, -0.2, 0.1)
+        assert (light["r"], light["s"]) == pytest.approx((-0.04, 0.02), abs=0.002)
 
 
 def test_view_stops_cleanly_on_ctrl_c(served):
