@@ -1,4 +1,4 @@
-"""``ltm`` commands that share a store with other tools: export."""
+"""``ltm`` commands that share a store with other tools and people: export, view."""
 
 from __future__ import annotations
 
@@ -31,6 +31,7 @@ def register(sub) -> None:
                    help="relight: JPEG quality of the planes (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_export)
+    register_view(sub)
 
 
 def cmd_export(a: argparse.Namespace) -> None:
@@ -41,3 +42,39 @@ def cmd_export(a: argparse.Namespace) -> None:
     print(f"wrote {r['path']} ({r['format']}, {r['basis']} basis, {r['terms']} terms, "
           f"{r['width']}x{r['height']} px, fitted at {r['directions']} light directions; "
           f"white = {r['white']:.4g} linear)")
+
+
+def register_view(sub) -> None:
+    """Add ``ltm view`` to the ``ltm`` subparsers ``sub``."""
+    p = sub.add_parser("view", help="an interactive page on 127.0.0.1: the light follows the "
+                       "pointer",
+                       description="Serve a page on this machine only (127.0.0.1) where the "
+                       "store is relit with the light under the pointer: zoom and pan, point or "
+                       "area light, the view of a 6D store, the expected_error map. Prints the "
+                       "URL; Ctrl-C stops.")
+    p.add_argument("store")
+    p.add_argument("--port", type=int, default=0, help="port (default: a free one)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="loopback address to bind: 127.0.0.1, localhost or ::1 (default: "
+                   "%(default)s); the page is never served to other machines")
+    p.add_argument("--open", action="store_true", help="open the page in a web browser")
+    p.set_defaults(func=cmd_view)
+
+
+def cmd_view(a: argparse.Namespace) -> None:
+    import sys
+    import webbrowser
+
+    from ltmstore.share.view import check_host, make_server
+
+    check_host(a.host)
+    server = make_server(a.store, host=a.host, port=a.port)
+    print(f"ltm view: serving {a.store} at {server.url} (Ctrl-C to stop)", flush=True)
+    if a.open:
+        webbrowser.open(server.url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        print("ltm view: stopped", file=sys.stderr)
+    finally:
+        server.server_close()

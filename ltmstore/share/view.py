@@ -1,0 +1,433 @@
+"""``ltm view``: an interactive page on 127.0.0.1 where the light follows the pointer.
+
+The server (the standard library's :class:`~http.server.ThreadingHTTPServer`) opens the store
+once and keeps it open; the page (static HTML and JavaScript shipped in ``share/viewer/``) asks
+it for relit images, one request in flight at a time:
+
+``GET /info``
+    The store's shape, light kind, plane or disk, view plane and overlays, as JSON.
+``GET /relight?u=U&v=V[&radius=R][&view=P,Q][&ev=auto|E]``
+    A PNG of the store relit by :func:`ltmstore.stages.relight.relight`. ``U, V`` in
+    ``[-1, 1]`` are the pointer over the image (``U`` right, ``V`` up): for a near-light store the
+    plane rectangle spans the image, for a far-light store the unit disk of ``(lx, ly)`` does
+    (a direction). ``R`` (same units, 0: a point light) makes an area light: a uniform disk on the
+    plane (or a cone of directions) of the same total power. ``ev=auto`` scales each image as
+    ``ltm relight`` does (its brightest 0.5 % clip); a number fixes the exposure (stops above the
+    white of the image lit from the plane's centre). The light used is in the ``X-Ltm-Light``
+    header (JSON).
+``GET /expected_error.png``
+    The store's ``expected_error (y, x)`` as a colour map (transparent where unknown).
+
+Only loopback addresses are served (:data:`LOOPBACK`), and requests whose ``Host`` header names
+another machine are refused (DNS rebinding).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import socket
+import threading
+import time
+import warnings
+from collections import OrderedDict
+from dataclasses import dataclass
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+import xarray as xr
+
+from ltmstore.core.dims import CHROMA_LTM, EXPECTED_ERROR, LTM, P, Plane, Q
+from ltmstore.core.errors import LtmError
+from ltmstore.core.lights import FAR, light_kind
+from ltmstore.core.store import open_store
+from ltmstore.core.transfer import encode, encode_images
+from ltmstore.stages.relight import relight
+
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
+          "/viewer.js": ("viewer.js", "text/javascript; charset=utf-8"),
+          "/viewer.css": ("viewer.css", "text/css; charset=utf-8")}
+DISK_EDGE = 0.98  # far-light stores: (lx, ly) kept inside this radius (a light above the horizon)
+AREA_SUBSAMPLES = 4  # per lattice cell and axis, for the coverage of a disk light
+CACHED_BYTES = 32 * 2**20  # variables up to this size are held in memory
+CACHE_BYTES = 768 * 2**20  # LTM blocks kept in memory (least recently used out)
+FAR_AREA_SAMPLES = 5  # directions per axis of a far-light area light's square grid
+
+
+def check_host(host: str) -> str:
+    """``host`` when it is a loopback name or address, else a :class:`LtmError`."""
+    if host not in LOOPBACK:
+        raise LtmError(f"host {host!r} is not a loopback address; ltm view serves only "
+                       f"{', '.join(LOOPBACK)}")
+    return host
+
+
+@dataclass(frozen=True)
+class Light:
+    """One request's light: the pointer ``(u, v)``, the light ``(r, s)`` it maps to, the area
+    radius in store units (0: a point light) and the view ``(p, q)`` (6D stores)."""
+
+    u: float
+    v: float
+    r: float
+    s: float
+    radius: float = 0.0
+    view: tuple[float, float] | None = None
+
+    def to_json(self) -> dict:
+        return {"u": self.u, "v": self.v, "r": self.r, "s": self.s, "radius": self.radius,
+                "view": None if self.view is None else list(self.view)}
+
+
+class Viewer:
+    """A store opened once for the page: maps the pointer to lights and renders PNGs.
+
+    Parameters
+    ----------
+    store : path-like
+        A reconstructed store (near or far lights, 4D or 6D).
+    """
+
+    def __init__(self, store: str | os.PathLike) -> None:
+        self.path = Path(store)
+        ds = open_store(store)
+        if LTM not in ds:
+            raise LtmError(f"store {str(store)!r} has no complete ltm; run `ltm reconstruct` "
+                           "first")
+        self.ds = in_memory(wide_chunks(ds, store))
+        acq = self.ds.attrs.get("acquisition", {})
+        self.far = light_kind(acq) == FAR
+        self.transfer = acq.get("transfer", "srgb")
+        ltm = self.ds[LTM]
+        r, s = ltm["r"].values, ltm["s"].values
+        self.plane = (Plane.from_json(acq["plane"]) if "plane" in acq and not self.far else
+                      Plane(r=(float(r[0]), float(r[-1])), s=(float(s[0]), float(s[-1])),
+                            height=1.0))
+        self.views = ({d: [float(ltm[d].values[0]), float(ltm[d].values[-1])] for d in (P, Q)}
+                      if P in ltm.dims else None)
+        if self.views and acq.get("view_plane"):
+            self.views = {d: [float(v) for v in acq["view_plane"][d]] for d in (P, Q)}
+        self._lock = threading.Lock()
+        self.white = 1.0
+        centre = self.render_linear(self.light_at(0.0, 0.0))[0]  # reads the store: fails early
+        self.white = max(float(np.percentile(centre, 99.5)), 1e-12)
+
+    # -- the pointer and the light ---------------------------------------------------------
+
+    def light_at(self, u: float, v: float, radius: float = 0.0,
+                 view: tuple[float, float] | None = None) -> Light:
+        """The light under the pointer ``(u, v)`` in ``[-1, 1]`` (right, up), ``radius`` in the
+        same units."""
+        u, v = float(np.clip(u, -1, 1)), float(np.clip(v, -1, 1))
+        if self.far:
+            norm = max(np.hypot(u, v) / DISK_EDGE, 1.0)
+            r, s = u / norm, v / norm
+            radius = float(np.clip(radius, 0, 1))
+        else:
+            (r0, r1), (s0, s1) = self.plane.r, self.plane.s
+            r, s = r0 + (u + 1) / 2 * (r1 - r0), s0 + (v + 1) / 2 * (s1 - s0)
+            radius = float(np.clip(radius, 0, 1)) * (r1 - r0) / 2
+        if self.views is not None and view is None:
+            view = tuple(float(np.mean(self.views[d])) for d in (P, Q))
+        return Light(u, v, float(r), float(s), radius, view)
+
+    def _area_pattern(self, light: Light) -> tuple[xr.DataArray, dict] | None:
+        """A near-light store's disk light: each cell's share of the disk (summing to 1) over
+        the cells it covers, and their index ranges; None when it covers less than a cell."""
+        ltm = self.ds[LTM]
+        rc, sc = ltm["r"].values, ltm["s"].values
+        dr, ds_ = (abs(rc[1] - rc[0]) if len(rc) > 1 else 1.0,
+                   abs(sc[1] - sc[0]) if len(sc) > 1 else 1.0)
+        if light.radius < min(dr, ds_):
+            return None
+        k = AREA_SUBSAMPLES
+        offsets = (np.arange(k) + 0.5) / k - 0.5
+        sub_r = (rc[:, None] + offsets[None] * dr).ravel()
+        sub_s = (sc[:, None] + offsets[None] * ds_).ravel()
+        inside = (np.subtract.outer(sub_r, light.r) ** 2)[:, None] + \
+            (np.subtract.outer(sub_s, light.s) ** 2)[None, :] <= light.radius ** 2
+        cover = inside.reshape(len(rc), k, len(sc), k).sum(axis=(1, 3)).astype(float)
+        if cover.sum() == 0:
+            return None
+        rows, cols = np.flatnonzero(cover.any(axis=1)), np.flatnonzero(cover.any(axis=0))
+        cells = {"r": slice(rows[0], rows[-1] + 1), "s": slice(cols[0], cols[-1] + 1)}
+        pattern = cover[cells["r"], cells["s"]] / cover.sum()
+        return xr.DataArray(pattern, dims=("r", "s")), cells
+
+    def _far_area(self, light: Light) -> np.ndarray:
+        """A far-light store's area light: directions ``(lx, ly)`` over a disk, inside the unit
+        disk."""
+        grid = np.linspace(-1, 1, FAR_AREA_SAMPLES)
+        du, dv = np.meshgrid(grid, grid)
+        keep = np.hypot(du, dv) <= 1
+        pts = np.column_stack([light.r + light.radius * du[keep],
+                               light.s + light.radius * dv[keep]])
+        norm = np.maximum(np.hypot(pts[:, 0], pts[:, 1]) / DISK_EDGE, 1.0)
+        return pts / norm[:, None]
+
+    # -- images ----------------------------------------------------------------------------
+
+    def render_linear(self, light: Light) -> tuple[np.ndarray, list[str]]:
+        """The linear image ``(y, x[, color])`` under ``light`` and the warnings it raised."""
+        with self._lock, warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            if self.far and light.radius > 0:
+                image = relight(self.ds, self._far_area(light)).mean("light")
+            else:
+                area = None if self.far else self._area_pattern(light)
+                if area is None:
+                    image = relight(self.ds, [(light.r, light.s)], view=light.view).sum("light")
+                else:
+                    pattern, cells = area
+                    image = relight(self.ds.isel(cells), pattern, view=light.view).sum("light")
+            values = image.values
+        return values, sorted({str(w.message) for w in caught})
+
+    def render_png(self, light: Light, ev: float | None = None) -> tuple[bytes, list[str]]:
+        """PNG bytes of ``light``: scaled as ``ltm relight`` does (``ev`` None) or at a fixed
+        exposure ``ev`` stops above the centre light's white."""
+        values, notes = self.render_linear(light)
+        if ev is None:
+            code = encode_images(values[None], self.transfer)[0]
+        else:
+            code = encode(values / (self.white * 2.0 ** -ev), self.transfer)
+        return png(code), notes
+
+    def error_png(self) -> tuple[bytes, float]:
+        """The ``expected_error`` map as an RGBA PNG (magma, 0 to its 99th percentile) and the
+        value of the brightest colour."""
+        from matplotlib import colormaps
+
+        err = np.asarray(self.ds[EXPECTED_ERROR].values, dtype=float)
+        finite = np.isfinite(err)
+        top = float(np.percentile(err[finite], 99)) if finite.any() else 1.0
+        top = top if top > 0 else 1.0
+        rgba = colormaps["magma"](np.clip(np.nan_to_num(err) / top, 0, 1), bytes=True)
+        rgba[..., 3] = np.where(finite, 255, 0)
+        return png(rgba), top
+
+    def info(self) -> dict:
+        """What the page needs to know about the store."""
+        ltm = self.ds[LTM]
+        return {
+            "store": self.path.name, "far": self.far,
+            "width": int(self.ds.sizes["x"]), "height": int(self.ds.sizes["y"]),
+            "lattice": [int(ltm.sizes["r"]), int(ltm.sizes["s"])],
+            "plane": {"r": list(self.plane.r), "s": list(self.plane.s),
+                      "height": self.plane.height},
+            "unit": "lx, ly (direction)" if self.far else self.ds.attrs.get(
+                "acquisition", {}).get("plane", {}).get("unit", "m"),
+            "views": self.views, "expected_error": EXPECTED_ERROR in self.ds,
+        }
+
+
+def wide_chunks(ds: xr.Dataset, path: str | os.PathLike) -> xr.Dataset:
+    """``ds`` with its LTMs in Dask chunks of whole images by the stored inner chunks of the
+    lattice: one light reads the same Zarr chunks as before in one task per lattice block
+    instead of one per pixel tile (a 400 x 400 px, 50 x 50 store: 188 tasks, not 31,604)."""
+    names = [n for n in (LTM, *CHROMA_LTM.values()) if n in ds]
+    inner = dict(zip(ds[LTM].dims, ds[LTM].encoding.get("chunks", ds[LTM].shape), strict=True))
+    keep = set(names) | set(ds.coords)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the chunks of other variables are not used
+        wide = xr.open_zarr(path, consolidated=False, chunks={**inner, "y": -1, "x": -1},
+                            drop_variables=[n for n in ds.variables if n not in keep])
+    return ds.assign({n: cached(wide[n]) for n in names})
+
+
+class BlockCache:
+    """A Dask-chunked variable read whole block by block and kept in memory, least recently
+    used out past ``budget`` bytes: a pointer moving within a lattice block reads nothing.
+
+    An array-like for :func:`dask.array.from_array` (indexing within one block).
+    """
+
+    def __init__(self, var: xr.DataArray, budget: int) -> None:
+        self.var, self.budget = var, budget
+        self.shape, self.dtype, self.ndim = var.shape, var.dtype, var.ndim
+        self.starts = [np.cumsum((0, *c)) for c in var.data.chunks]
+        self.blocks: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self.lock = threading.Lock()
+
+    def _block(self, index: tuple[int, ...]) -> np.ndarray:
+        with self.lock:
+            if index in self.blocks:
+                self.blocks.move_to_end(index)
+                return self.blocks[index]
+        block = np.asarray(self.var.data.blocks[index].compute(scheduler="synchronous"))
+        with self.lock:
+            self.blocks[index] = block
+            while sum(b.nbytes for b in self.blocks.values()) > self.budget and \
+                    len(self.blocks) > 1:
+                self.blocks.popitem(last=False)
+        return block
+
+    def __getitem__(self, key) -> np.ndarray:
+        key = key if isinstance(key, tuple) else (key,)
+        key = key + (slice(None),) * (self.ndim - len(key))
+        index, local = [], []
+        for k, starts in zip(key, self.starts, strict=True):
+            if isinstance(k, slice) and k.step in (None, 1):
+                lo = starts[0] if k.start is None else k.start
+                hi = starts[-1] if k.stop is None else k.stop
+            elif isinstance(k, int | np.integer):
+                lo = hi = int(k)
+            else:
+                return np.asarray(self.var.data[key].compute(scheduler="synchronous"))
+            i = int(np.searchsorted(starts, lo, side="right") - 1)
+            if not starts[i] <= hi <= starts[i + 1]:
+                return np.asarray(self.var.data[key].compute(scheduler="synchronous"))
+            index.append(i)
+            local.append(lo - starts[i] if isinstance(k, int | np.integer) else
+                         slice(lo - starts[i], hi - starts[i]))
+        return self._block(tuple(index))[tuple(local)]
+
+
+def cached(var: xr.DataArray, budget: int = CACHE_BYTES) -> xr.DataArray:
+    """``var`` (Dask-backed) with its blocks read through a :class:`BlockCache`."""
+    import dask.array as da
+
+    data = da.from_array(BlockCache(var, budget), chunks=var.data.chunks, asarray=False,
+                         fancy=False, name=f"ltm-view-{var.name}-{id(var)}")
+    return var.copy(data=data)
+
+
+def in_memory(ds: xr.Dataset, limit: int = CACHED_BYTES) -> xr.Dataset:
+    """``ds`` with its variables of at most ``limit`` bytes read into memory (poses, chroma,
+    maps), so that each image reads only the large arrays' chunks it needs."""
+    small = [name for name, var in ds.data_vars.items() if var.nbytes <= limit]
+    return ds.assign({name: ds[name].load() for name in small})
+
+
+def png(code: np.ndarray) -> bytes:
+    """A fast (lightly compressed) PNG of 8-bit ``code`` (gray, RGB or RGBA)."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(code)).save(buf, format="PNG", compress_level=1)
+    return buf.getvalue()
+
+
+def _floats(text: str, count: int, name: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(t) for t in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count or not np.isfinite(values).all():
+        raise LtmError(f"{name} {text!r} must be {count} finite number(s)")
+    return values
+
+
+def parse_query(viewer: Viewer, query: str) -> tuple[Light, float | None]:
+    """The light and exposure of a ``/relight`` query string."""
+    q = {k: v[-1] for k, v in parse_qs(query).items()}
+    u, = _floats(q.get("u", "0"), 1, "u")
+    v, = _floats(q.get("v", "0"), 1, "v")
+    radius, = _floats(q.get("radius", "0"), 1, "radius")
+    view = _floats(q["view"], 2, "view") if "view" in q and viewer.views else None
+    ev = None if q.get("ev", "auto") == "auto" else _floats(q["ev"], 1, "ev")[0]
+    return viewer.light_at(u, v, radius, view), ev
+
+
+class Handler(BaseHTTPRequestHandler):
+    """The page's requests; ``server.viewer`` holds the open store."""
+
+    server_version = "ltm-view"
+
+    def log_message(self, format, *args) -> None:  # noqa: A002 - quiet: the page is the log
+        pass
+
+    def do_GET(self) -> None:  # noqa: N802 - http.server's name
+        url = urlsplit(self.path)
+        if not self._host_ok():
+            return self._send(HTTPStatus.FORBIDDEN, b"only local pages", "text/plain")
+        viewer: Viewer = self.server.viewer
+        try:
+            if url.path in STATIC:
+                name, kind = STATIC[url.path]
+                return self._send(HTTPStatus.OK, static(name), kind)
+            if url.path == "/info":
+                return self._send(HTTPStatus.OK, json.dumps(viewer.info()).encode(),
+                                  "application/json")
+            if url.path == "/relight":
+                light, ev = parse_query(viewer, url.query)
+                start = time.perf_counter()
+                body, notes = viewer.render_png(light, ev)
+                headers = {"X-Ltm-Light": json.dumps(light.to_json()),
+                           "X-Ltm-Render-Ms": f"{1000 * (time.perf_counter() - start):.1f}"}
+                if notes:
+                    headers["X-Ltm-Warning"] = notes[0].encode("ascii", "replace").decode()
+                return self._send(HTTPStatus.OK, body, "image/png", headers)
+            if url.path == "/expected_error.png" and viewer.info()["expected_error"]:
+                body, top = viewer.error_png()
+                return self._send(HTTPStatus.OK, body, "image/png",
+                                  {"X-Ltm-Error-Max": f"{top:.6g}"})
+        except LtmError as exc:
+            return self._send(HTTPStatus.BAD_REQUEST, str(exc).encode(), "text/plain")
+        except ValueError as exc:  # a chunk that fails its checksum, found while reading
+            return self._send(HTTPStatus.INTERNAL_SERVER_ERROR,
+                              f"store {str(viewer.path)!r} cannot be read: {exc}".encode(),
+                              "text/plain")
+        self._send(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
+
+    def _host_ok(self) -> bool:
+        host = (self.headers.get("Host") or "").rsplit(":", 1)[0].strip("[]")
+        return host in LOOPBACK
+
+    def _send(self, status: HTTPStatus, body: bytes, kind: str,
+              headers: dict | None = None) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", kind)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        for key, value in (headers or {}).items():
+            self.send_header(key, value)
+        self.end_headers()
+        self.wfile.write(body)
+
+
+def static(name: str) -> bytes:
+    """A file of the page, shipped as package data in ``ltmstore/share/viewer/``."""
+    return resources.files("ltmstore.share").joinpath("viewer", name).read_bytes()
+
+
+class ViewServer(ThreadingHTTPServer):
+    """The page's server, holding the :class:`Viewer`."""
+
+    daemon_threads = True
+
+    def __init__(self, viewer: Viewer, host: str, port: int) -> None:
+        self.viewer = viewer
+        self.address_family = socket.AF_INET6 if host == "::1" else socket.AF_INET
+        address = "127.0.0.1" if host == "localhost" else host
+        super().__init__((address, port), Handler)
+
+    @property
+    def url(self) -> str:
+        host, port = self.server_address[:2]
+        return f"http://{'[::1]' if ':' in host else host}:{port}/"
+
+
+def make_server(store: str | os.PathLike, *, host: str = "127.0.0.1",
+                port: int = 0) -> ViewServer:
+    """Open ``store`` and bind its page on a loopback ``host`` (``port`` 0: a free one).
+
+    Raises
+    ------
+    LtmError
+        A host that is not loopback, a store without a complete ``ltm``, a port in use.
+    """
+    check_host(host)
+    if not 0 <= port <= 65535:
+        raise LtmError(f"port {port} must lie in 0-65535 (0: a free port)")
+    viewer = Viewer(store)
+    try:
+        return ViewServer(viewer, host, port)
+    except OSError as exc:
+        raise LtmError(f"cannot listen on {host} port {port}: {exc.strerror or exc}") from exc

@@ -1,0 +1,119 @@
+"""Headless Chromium driven over the DevTools protocol (a WebSocket): enough to load a page,
+move the mouse, evaluate JavaScript and take screenshots. Debian's ``chromium`` package; no
+browser download, no driver besides ``websockets``."""
+
+from __future__ import annotations
+
+import base64
+import itertools
+import json
+import shutil
+import subprocess
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+CHROMIUM = ("chromium", "/usr/bin/chromium", "chromium-browser")
+
+
+def chromium_path() -> str:
+    """The Chromium executable; an AssertionError (a failure, never a skip) when missing."""
+    found = next((p for p in map(shutil.which, CHROMIUM) if p), None)
+    assert found, "chromium is missing: install Debian's chromium package (.ci/run does)"
+    return found
+
+
+class Browser:
+    """One headless Chromium with one page of ``width`` x ``height`` CSS pixels."""
+
+    def __init__(self, width: int = 1000, height: int = 700, timeout: float = 20) -> None:
+        from websockets.sync.client import connect
+
+        self.profile = Path(tempfile.mkdtemp(prefix="ltm-chromium-"))
+        self.proc = subprocess.Popen(
+            [chromium_path(), "--headless", "--no-sandbox", "--disable-gpu",
+             "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0",
+             f"--user-data-dir={self.profile}", f"--window-size={width},{height}",
+             "--no-first-run", "--no-default-browser-check", "--disable-extensions",
+             "--hide-scrollbars", "--force-device-scale-factor=1", "--mute-audio",
+             "about:blank"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        port = self._devtools_port(timeout)
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=timeout) as r:
+            page = next(t for t in json.load(r) if t["type"] == "page")
+        self.ws = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=timeout)
+        self.ids = itertools.count(1)
+        self.call("Emulation.setDeviceMetricsOverride", width=width, height=height,
+                  deviceScaleFactor=1, mobile=False)
+
+    def _devtools_port(self, timeout: float) -> int:
+        marker = self.profile / "DevToolsActivePort"
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if marker.exists() and marker.read_text().strip():
+                return int(marker.read_text().split()[0])
+            assert self.proc.poll() is None, f"chromium exited with {self.proc.returncode}"
+            time.sleep(0.05)
+        raise AssertionError("chromium did not open its DevTools port")
+
+    def call(self, method: str, **params) -> dict:
+        """Send one DevTools command and return its result (events are skipped)."""
+        ident = next(self.ids)
+        self.ws.send(json.dumps({"id": ident, "method": method, "params": params}))
+        while True:
+            message = json.loads(self.ws.recv(timeout=30))
+            if message.get("id") == ident:
+                assert "error" not in message, f"{method}: {message['error']}"
+                return message["result"]
+
+    def evaluate(self, expression: str):
+        """The value of a JavaScript expression (promises awaited)."""
+        result = self.call("Runtime.evaluate", expression=expression, awaitPromise=True,
+                           returnByValue=True)
+        assert "exceptionDetails" not in result, result["exceptionDetails"]
+        return result["result"].get("value")
+
+    def goto(self, url: str) -> None:
+        """Load ``url`` and wait for its load event."""
+        self.call("Page.navigate", url=url)
+        self.wait_for(f"document.URL === {json.dumps(url)} && "
+                      "document.readyState === 'complete'")
+
+    def wait_for(self, expression: str, timeout: float = 20):
+        """Poll ``expression`` until it is truthy; return its value."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            value = self.evaluate(expression)
+            if value:
+                return value
+            time.sleep(0.02)
+        raise AssertionError(f"timed out waiting for {expression}")
+
+    def move_mouse(self, x: float, y: float) -> None:
+        self.call("Input.dispatchMouseEvent", type="mouseMoved", x=x, y=y)
+
+    def screenshot(self, clip: dict | None = None) -> bytes:
+        """A PNG of the page (or of ``clip``: x, y, width, height in CSS pixels)."""
+        params = {"format": "png"}
+        if clip:
+            params["clip"] = {**clip, "scale": 1}
+        return base64.b64decode(self.call("Page.captureScreenshot", **params)["data"])
+
+    def close(self) -> None:
+        try:
+            self.ws.close()
+        finally:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+            shutil.rmtree(self.profile, ignore_errors=True)
+
+    def __enter__(self) -> Browser:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
