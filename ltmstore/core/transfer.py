@@ -33,6 +33,13 @@ def decode(code: np.ndarray, transfer: str) -> np.ndarray:
     return srgb_to_linear(v) if transfer == "srgb" else v
 
 
+def transfer_lut(transfer: str, bits: int = 8) -> np.ndarray:
+    """Linear light of each code value of ``bits`` (8 or 16), as a ``(2**bits,)`` float32 table
+    (see :func:`decode`)."""
+    codes = np.arange(2**bits)
+    return decode(codes if bits == 8 else codes * (255 / (2**bits - 1)), transfer)
+
+
 def encode(linear: np.ndarray, transfer: str) -> np.ndarray:
     """Linear light to 8-bit code values (rounded, clipped)."""
     _check(transfer)

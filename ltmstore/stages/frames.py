@@ -16,7 +16,6 @@ import zarr
 
 from ltmstore.capture.acquisition import Poses
 from ltmstore.capture.register import ViewRig, rectify
-from ltmstore.capture.video import transfer_lut
 from ltmstore.core.dims import (
     CHANNEL,
     CHROMA,
@@ -35,6 +34,7 @@ from ltmstore.core.dims import (
 )
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import complete_stage, create_variable, write_coord
+from ltmstore.core.transfer import transfer_lut
 
 STAGE = "ingest"
 ACQUISITION_ATTR = "acquisition"

@@ -20,13 +20,12 @@ from tqdm.auto import tqdm
 
 from ltmstore.capture.acquisition import sha256_file
 from ltmstore.capture.lp import decode_image, read_lp
-from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
-from ltmstore.core.lights import FAR, KIND_ATTR, coordinate_attrs
+from ltmstore.core.lights import DISK, FAR, KIND_ATTR, coordinate_attrs
 from ltmstore.core.store import begin_stage, new_store
 from ltmstore.stages.frames import DEFAULT_CHUNK_FRAMES, STAGE, FrameSink, Lights, finish_ingest
 
-DISK = Plane(r=(-1.0, 1.0), s=(-1.0, 1.0), height=1.0, unit="1")
+__all__ = ["DISK", "far_lights", "ingest_rti"]  # DISK: re-exported from core.lights
 
 
 def far_lights(directions: np.ndarray) -> Lights:

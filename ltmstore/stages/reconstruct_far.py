@@ -36,11 +36,10 @@ from tqdm.auto import tqdm
 from ltmstore.core import store as st
 from ltmstore.core.dims import EXPECTED_ERROR, FRAMES, LTM, UNSUPPORTED, Lattice
 from ltmstore.core.errors import LtmError
-from ltmstore.core.lights import FAR, coordinate_attrs, disk_to_direction
+from ltmstore.core.lights import DISK, FAR, coordinate_attrs, disk_to_direction
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.solve import Geometry
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
-from ltmstore.stages.ingest_rti import DISK
 from ltmstore.stages.plan import plan_tiles, write_method_map
 
 FAR_LATTICE = (8, 8)
