@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 
 from ltmstore.capture.lp import read_lp
+from ltmstore.core.provenance import commit
 from ltmstore.core.store import open_group
 from ltmstore.stages.ingest_rti import ingest_rti
 from ltmstore.stages.reconstruct import reconstruct
@@ -199,7 +200,8 @@ def main() -> None:
     bases = args.relight_bases.split(",")
     result = {"machine": {"platform": platform.platform(), "python": platform.python_version(),
                           "cores": os.cpu_count()},
-              "command": "python " + " ".join(sys.argv), "repeats": args.repeats,
+              "command": "python " + " ".join(sys.argv), "commit": commit(),
+              "repeats": args.repeats,
               "load_start": load(), "relight_cli": relight_cli,
               "help": help_cost(args.repeats), "captures": {}}
     with tempfile.TemporaryDirectory() as tmp:
