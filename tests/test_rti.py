@@ -220,3 +220,35 @@ def test_real_data(name, tmp_path):
     assert report["rejected"] == {"beyond_poses": 0, "out_of_plane": 0, "outside_bounds": 0}
     assert np.isfinite(ds.frames[:: max(1, n // 8)].values).all()
     assert 0 < float(ds.frames[0].mean()) < 1
+
+
+def test_rti_commands_load_only_what_they_need(lp, tmp_path):
+    """``ltm ingest-rti`` and ``ltm reconstruct`` of a far-light store, in a fresh Python: no
+    Dask, xarray, Prefect, SciPy or scikit-learn is imported (each costs a command 0.2-1 s of
+    start-up; a small capture pays for nothing it does not use)."""
+    import json
+    import subprocess
+    import sys
+
+    heavy = ("dask", "distributed", "xarray", "pandas", "prefect", "scipy", "sklearn", "skimage",
+             "av")
+    code = ("import json, sys; from ltmstore.cli import main; "
+            f"assert main(['ingest-rti', {str(lp)!r}, {str(tmp_path / 's.zarr')!r}]) == 0; "
+            f"assert main(['reconstruct', {str(tmp_path / 's.zarr')!r}]) == 0; "
+            "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules})))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.splitlines()[-1]
+    assert not set(json.loads(out)) & set(heavy), out
+
+
+def test_loo_mse_by_gram_matrix_is_the_direct_mean():
+    from ltmstore.stages.reconstruct_far import _loo_mse
+
+    rng = np.random.default_rng(0)
+    values = rng.random((12, 500), dtype=np.float32)
+    loo = rng.standard_normal((3, 12, 12))
+    direct = [np.mean((a @ values.astype(np.float64)) ** 2) for a in loo]
+    usable = np.array([True, True, False])
+    np.testing.assert_allclose(_loo_mse(values, loo, usable)[:2], direct[:2], rtol=1e-10)
+    assert _loo_mse(values, loo, usable)[2] == np.inf
+

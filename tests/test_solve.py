@@ -64,7 +64,7 @@ def test_fast_method_matches_lars_on_a_scene_like_ltf():
 
 
 def test_unknown_method_is_a_clear_error():
-    with pytest.raises(LtmError, match="unknown method .magic.; expected one of blend, cs, cubic, "):
+    with pytest.raises(LtmError, match="unknown method .magic.; expected one of blend, cs, "):
         get_method("magic")
 
 

@@ -18,16 +18,11 @@ import av.logging
 import numpy as np
 
 from ltmstore.core.errors import LtmError
-from ltmstore.core.transfer import decode
+from ltmstore.core.transfer import transfer_lut
+
+__all__ = ["ALLOW_OPTION", "VideoReader", "transfer_lut"]  # transfer_lut: re-exported
 
 ALLOW_OPTION = "--allow-dropped-frames"
-
-
-def transfer_lut(transfer: str, bits: int = 8) -> np.ndarray:
-    """Linear light of each code value of ``bits`` (8 or 16), as a ``(2**bits,)`` float32 table
-    (see :func:`ltmstore.core.transfer.decode`)."""
-    codes = np.arange(2**bits)
-    return decode(codes if bits == 8 else codes * (255 / (2**bits - 1)), transfer)
 
 
 class VideoReader:

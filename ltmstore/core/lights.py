@@ -22,10 +22,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
 
 NEAR, FAR = "near", "far"
 KIND_ATTR = "light_kind"  # acquisition attribute: "near" (default, handheld) or "far"
+# The "plane" of a far-light store: the square of direction cosines (lx, ly) that holds the disk.
+DISK = Plane(r=(-1.0, 1.0), s=(-1.0, 1.0), height=1.0, unit="1")
 
 
 def light_kind(acquisition: dict) -> str:

@@ -16,9 +16,9 @@ import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import xarray as xr
 import zarr
 from zarr.abc.store import Store
 from zarr.storage import WrapperStore
@@ -28,6 +28,9 @@ from ltmstore.core.errors import LtmError
 from ltmstore.core.lock import locked
 from ltmstore.core.provenance import software, summary
 from ltmstore.core.swap import journal_path, recover, swap_in
+
+if TYPE_CHECKING:  # xarray loads in open_store: writing a store does not need it
+    import xarray as xr
 
 __all__ = ["swap_in"]  # re-exported: the archive swaps its stores in too
 
@@ -326,6 +329,8 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     ``path`` may also be a Zarr store object (e.g. a :class:`CountingStore`). Variables of
     stages that did not complete are dropped, so partial results are never served.
     """
+    import xarray as xr
+
     group = open_group(path)
     if not isinstance(path, Store):
         _refuse_damaged(Path(path), group)

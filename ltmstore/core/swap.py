@@ -14,8 +14,10 @@ import json
 import os
 import shutil
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+FSYNC_THREADS = 8
 # Tests only: seconds to pause between the two renames (to kill the process there).
 PAUSE_ENV = "LTM_TEST_SWAP_PAUSE_S"
 
@@ -81,20 +83,24 @@ def recover(path: Path) -> str | None:
 
 
 def fsync_tree(root: Path) -> None:
-    """Flush every file and folder under ``root`` to disk."""
-    for folder, _, files in os.walk(root):
-        for name in files:
-            fd = os.open(os.path.join(folder, name), os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-        fsync_dir(Path(folder))
+    """Flush every file and folder under ``root`` to disk (all flushed when it returns).
+
+    The flushes run on a few threads: each waits on the disk, not the CPU, and a store holds
+    hundreds of chunk files (one at a time took 0.2-0.6 s for a 0.16 MP capture here).
+    """
+    paths = [os.path.join(folder, name) for folder, _, files in os.walk(root)
+             for name in (*files, ".")]
+    with ThreadPoolExecutor(max_workers=FSYNC_THREADS) as pool:
+        list(pool.map(_fsync, paths))
 
 
 def fsync_dir(folder: Path) -> None:
     """Flush a folder's entries (renames, new names) to disk."""
-    fd = os.open(folder, os.O_RDONLY)
+    _fsync(folder)
+
+
+def _fsync(path: str | Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
     finally:

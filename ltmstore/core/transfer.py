@@ -9,16 +9,28 @@ from ltmstore.core.errors import LtmError
 TRANSFERS = ("srgb", "linear")
 
 
+# Both curves work in float32 in place (one output array, no temporaries): they run on every
+# pixel of every photograph of a capture.
+
+
 def srgb_to_linear(v: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding of values in ``[0, 1]``."""
+    """IEC 61966-2-1 sRGB decoding of values in ``[0, 1]`` (float32)."""
     v = np.asarray(v, dtype=np.float32)
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+    out = v + np.float32(0.055)
+    out /= np.float32(1.055)
+    np.power(out, np.float32(2.4), out=out)
+    np.divide(v, np.float32(12.92), out=out, where=v <= 0.04045)
+    return out
 
 
 def linear_to_srgb(v: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB encoding of linear values (clipped to ``[0, 1]``)."""
+    """IEC 61966-2-1 sRGB encoding of linear values (clipped to ``[0, 1]``; float32)."""
     v = np.clip(np.asarray(v, dtype=np.float32), 0, 1)
-    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055).astype(np.float32)
+    out = np.power(v, np.float32(1 / 2.4))
+    out *= np.float32(1.055)
+    out -= np.float32(0.055)
+    np.multiply(v, np.float32(12.92), out=out, where=v <= 0.0031308)
+    return out
 
 
 def _check(transfer: str) -> None:
@@ -31,6 +43,13 @@ def decode(code: np.ndarray, transfer: str) -> np.ndarray:
     _check(transfer)
     v = np.asarray(code, dtype=np.float32) / 255.0
     return srgb_to_linear(v) if transfer == "srgb" else v
+
+
+def transfer_lut(transfer: str, bits: int = 8) -> np.ndarray:
+    """Linear light of each code value of ``bits`` (8 or 16), as a ``(2**bits,)`` float32 table
+    (see :func:`decode`)."""
+    codes = np.arange(2**bits)
+    return decode(codes if bits == 8 else codes * (255 / (2**bits - 1)), transfer)
 
 
 def encode(linear: np.ndarray, transfer: str) -> np.ndarray:

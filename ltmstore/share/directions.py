@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import xarray as xr
 import zarr
 
 from ltmstore.core.dims import (
@@ -35,6 +35,9 @@ from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, disk_to_direction, light_kind
 from ltmstore.core.store import open_group, open_store
 from ltmstore.solve import Geometry
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 
 @dataclass(frozen=True)

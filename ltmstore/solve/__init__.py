@@ -12,14 +12,14 @@ maps). ``solve`` imports only :mod:`ltmstore.core`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import importlib
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from ltmstore.core.dims import Lattice
 from ltmstore.core.errors import LtmError
-from ltmstore.solve import blend, cs, cubic, hsh, kernel, lars, omp, ptm, rbf, svt
 
 
 @dataclass(frozen=True)
@@ -67,10 +67,30 @@ class Geometry:
 
 Method = Callable[..., np.ndarray]
 
-METHODS: dict[str, Method] = {"cs": cs.solve, "lars": lars.solve, "omp": omp.solve,
-                              "cubic": cubic.solve, "kernel": kernel.solve, "svt": svt.solve,
-                              "ptm": ptm.solve, "hsh": hsh.solve, "rbf": rbf.solve,
-                              "blend": blend.solve}
+
+class Registry(Mapping):
+    """Method name -> ``solve`` function, each module imported on first use: a caller that
+    needs one method (or only the names: the CLI's choices) does not pay for the others'
+    imports (SciPy's FFT, scikit-learn)."""
+
+    def __init__(self, modules: dict[str, str]) -> None:
+        self._modules = dict(modules)
+
+    def __getitem__(self, name: str) -> Method:
+        module = self._modules[name]  # KeyError for an unknown name, as a dict
+        return importlib.import_module(f"ltmstore.solve.{module}").solve
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._modules)
+
+    def __len__(self) -> int:
+        return len(self._modules)
+
+
+# One line per method: its name and its module in ltmstore.solve (which defines ``solve``).
+METHODS: Mapping[str, Method] = Registry({
+    "cs": "cs", "lars": "lars", "omp": "omp", "cubic": "cubic", "kernel": "kernel",
+    "svt": "svt", "ptm": "ptm", "hsh": "hsh", "rbf": "rbf", "blend": "blend"})
 DEFAULT_METHOD = "auto"  # per tile, by held-out error (ltmstore.solve.select.choose_method)
 
 

@@ -19,11 +19,10 @@ minimum-norm fit.
 
 from __future__ import annotations
 
-from math import factorial, pi, sqrt
+from math import factorial, pi, prod, sqrt
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.special import lpmv
 
 from ltmstore.core.errors import LtmError
 from ltmstore.solve.basis import fit_light_basis
@@ -42,7 +41,7 @@ def hsh_basis(directions: np.ndarray, order: int = 3) -> np.ndarray:
     for l in range(int(order) + 1):  # noqa: E741 (the usual name of the degree)
         for m in range(-l, l + 1):
             k = sqrt((2 * l + 1) * factorial(l - abs(m)) / (2 * pi * factorial(l + abs(m))))
-            radial = k * lpmv(abs(m), l, x)
+            radial = k * legendre(abs(m), l, x)
             if m > 0:
                 columns.append(sqrt(2) * np.cos(m * phi) * radial)
             elif m < 0:
@@ -50,6 +49,22 @@ def hsh_basis(directions: np.ndarray, order: int = 3) -> np.ndarray:
             else:
                 columns.append(radial)
     return np.column_stack(columns)
+
+
+def legendre(m: int, l: int, x: np.ndarray) -> np.ndarray:  # noqa: E741
+    """The associated Legendre function ``P_l^m(x)`` for integers ``0 <= m <= l``, with the
+    Condon-Shortley phase (as :func:`scipy.special.lpmv`, to 1e-12), by the upward recurrence
+    in ``l``: NumPy alone, so that fitting and relighting classic captures need not import
+    SciPy's special functions."""
+    p = np.full_like(x, (-1.0) ** m * prod(range(1, 2 * m, 2)), dtype=np.float64)
+    if m:
+        p = p * ((1 - x) * (1 + x)) ** (m / 2)
+    if l == m:
+        return p
+    previous, p = p, (2 * m + 1) * x * p
+    for k in range(m + 2, l + 1):
+        previous, p = p, ((2 * k - 1) * x * p - (k + m - 1) * previous) / (k - m)
+    return p
 
 
 def solve(samples: np.ndarray, geometry: Geometry, *, order: int = 3,

@@ -16,7 +16,6 @@ import zarr
 
 from ltmstore.capture.acquisition import Poses
 from ltmstore.capture.register import ViewRig, rectify
-from ltmstore.capture.video import transfer_lut
 from ltmstore.core.dims import (
     CHANNEL,
     CHROMA,
@@ -35,6 +34,7 @@ from ltmstore.core.dims import (
 )
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import complete_stage, create_variable, write_coord
+from ltmstore.core.transfer import transfer_lut
 
 STAGE = "ingest"
 ACQUISITION_ATTR = "acquisition"
@@ -49,6 +49,7 @@ MIN_VALID_FRAMES = 8
 MAX_POSE_GAP_S = 0.25
 # Measured over seeds 0-2: relief 0.035-0.038, icon 0.019-0.023, canvas 0.070-0.081.
 CHROMA_TOLERANCE = 0.05  # RMS colour error of a luminance-only LTM, relative to the signal
+MOMENTS = ((0, 0), (1, 0), (2, 0), (1, 1), (2, 2))  # Y^2, Cb Y, Cr Y, Cb^2, Cr^2
 
 
 @dataclass(frozen=True)
@@ -178,8 +179,7 @@ class FrameSink:
         self._rig = rig
         self._raw_shape: tuple[int, ...] | None = None
         self.observed = [0.0, 0]  # sum over valid frames of the observed grid fraction, count
-        self._lut = transfer_lut(transfer)
-        self._transfer = transfer
+        self._luts = {bits: transfer_lut(transfer, bits=bits) for bits in (8, 16)}
         self._chunk_frames = _positive_int(chunk_frames, "chunk_frames")
         self._frames: zarr.Array | None = None
         self._buffer = np.empty((0, 0, 0), dtype=np.float32)
@@ -196,21 +196,27 @@ class FrameSink:
         """``(H, W)`` of the frames (``(0, 0)`` before the first frame)."""
         return self._sums.shape[1:]
 
+    def convert(self, rgb: np.ndarray) -> np.ndarray:
+        """Linear Y, Cb, Cr ``(H, W, 3)`` float32 of an RGB frame, uint8 or uint16 (16-bit
+        images keep 16 bits). Changes nothing in the sink, so decoding threads may convert
+        frames ahead of :meth:`add`."""
+        return rgb_to_ycbcr(self._luts[16 if rgb.dtype == np.uint16 else 8][rgb])
+
     def add(self, rgb8: np.ndarray, valid: bool, *, source: str,
-            view: tuple[float, float] | None = None) -> None:
+            view: tuple[float, float] | None = None, ycc: np.ndarray | None = None) -> None:
         """Append one ``(H, W, 3)`` uint8 (or uint16) RGB frame; ``valid`` frames count towards
         chroma.
 
         With a rig, ``view = (p, q)`` is the camera position of the frame (NaN: unknown).
+        ``ycc`` is the frame's :meth:`convert`, when already computed.
         """
         if self._raw_shape is None:
             self._raw_shape = rgb8.shape[:2]
         if rgb8.shape != (*self._raw_shape, 3):
             raise LtmError(f"{source} is {rgb8.shape[1]}x{rgb8.shape[0]} pixels; expected "
                            f"{self._raw_shape[1]}x{self._raw_shape[0]} like the first frame")
-        if rgb8.dtype == np.uint16 and len(self._lut) == 256:  # 16-bit images keep 16 bits
-            self._lut = transfer_lut(self._transfer, bits=16)
-        ycc = rgb_to_ycbcr(self._lut[rgb8])
+        if ycc is None:
+            ycc = self.convert(rgb8)
         if self._rig is not None:
             ycc = rectify(ycc, self._rig, *(view if view is not None else (np.nan, np.nan)))
             if valid:
@@ -225,8 +231,8 @@ class FrameSink:
         if valid:
             ycc = np.moveaxis(ycc if self._rig is None else np.nan_to_num(ycc), -1, 0)
             self._sums += ycc
-            self._moments += [ycc[0] ** 2, ycc[1] * ycc[0], ycc[2] * ycc[0], ycc[1] ** 2,
-                              ycc[2] ** 2]
+            for moment, (a, b) in zip(self._moments, MOMENTS, strict=True):
+                moment += ycc[a] * ycc[b]
         self._pending += 1
         self.n += 1
         if self._pending == self._chunk_frames:

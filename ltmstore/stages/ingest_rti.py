@@ -12,7 +12,10 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import closing
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +23,12 @@ from tqdm.auto import tqdm
 
 from ltmstore.capture.acquisition import sha256_file
 from ltmstore.capture.lp import decode_image, read_lp
-from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
-from ltmstore.core.lights import FAR, KIND_ATTR, coordinate_attrs
+from ltmstore.core.lights import DISK, FAR, KIND_ATTR, coordinate_attrs
 from ltmstore.core.store import begin_stage, new_store
 from ltmstore.stages.frames import DEFAULT_CHUNK_FRAMES, STAGE, FrameSink, Lights, finish_ingest
 
-DISK = Plane(r=(-1.0, 1.0), s=(-1.0, 1.0), height=1.0, unit="1")
+__all__ = ["DISK", "far_lights", "ingest_rti"]  # DISK: re-exported from core.lights
 
 
 def far_lights(directions: np.ndarray) -> Lights:
@@ -81,12 +83,13 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
     with new_store(store, overwrite=overwrite) as group:
         begin_stage(group, STAGE)
         sink = FrameSink(group, transfer="srgb", chunk_frames=chunk_frames)
-        bar = tqdm(zip(names, lights.valid, strict=True), total=len(names),
-                   disable=not progress, unit="image", desc="ingest")
-        for name, valid in bar:
-            data = (lp_path.parent / name).read_bytes()
-            digest.update(data)
-            sink.add(decode_image(data, name), bool(valid), source=f"image {name!r}")
+        # closing: the decoding threads end with an error too
+        with closing(_decoded(lp_path.parent, names, sink.convert)) as images:
+            bar = tqdm(zip(names, lights.valid, images, strict=True), total=len(names),
+                       disable=not progress, unit="image", desc="ingest")
+            for name, valid, (data, rgb, ycc) in bar:
+                digest.update(data)
+                sink.add(rgb, bool(valid), source=f"image {name!r}", ycc=ycc)
         # sha256 "images": of all image files concatenated in .lp order
         acquisition = {"source": "rti", KIND_ATTR: FAR, "lp": lp_path.name,
                        "lp_path": str(lp_path.resolve()), "plane": DISK.to_json(),
@@ -98,3 +101,32 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
                                acquisition=acquisition, info=info, started=started)
     return {**record, "store": str(store)}
 
+
+def _decoded(folder: Path, names: Sequence[str], convert: Callable[[np.ndarray], np.ndarray],
+             *, workers: int | None = None) -> Iterator[tuple[bytes, np.ndarray, np.ndarray]]:
+    """``(file bytes, RGB, convert(RGB))`` of each image in ``names``, in order.
+
+    A few threads read, decode and convert ahead of the caller (OpenCV and NumPy release the
+    GIL); at most two images per thread wait, so memory stays bounded on long captures. An
+    image that cannot be decoded raises when its turn comes.
+    """
+    def load(name: str) -> tuple[bytes, np.ndarray, np.ndarray]:
+        data = (folder / name).read_bytes()
+        rgb = decode_image(data, name)
+        return data, rgb, convert(rgb)
+
+    workers = workers or max(1, min(4, os.cpu_count() or 1))
+    todo = iter(names)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        waiting = deque(pool.submit(load, name) for _, name in zip(range(2 * workers), todo,
+                                                                  strict=False))
+        try:
+            while waiting:
+                image = waiting.popleft().result()
+                for name in todo:  # keep the queue full: one in for one out
+                    waiting.append(pool.submit(load, name))
+                    break
+                yield image
+        finally:  # the caller stopped early (an error): decode nothing more
+            for future in waiting:
+                future.cancel()

@@ -13,15 +13,13 @@ import os
 import time
 from dataclasses import asdict
 from functools import partial
+from typing import TYPE_CHECKING
 
-import dask.array as da
 import numpy as np
 import zarr
-from distributed import Client, as_completed
 from tqdm.auto import tqdm
 
 from ltmstore.core import store as st
-from ltmstore.core.cluster import dask_client, is_small
 from ltmstore.core.dims import (
     CHROMA_CHANNELS,
     CHROMA_LTM,
@@ -38,10 +36,8 @@ from ltmstore.core.dims import (
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
-from ltmstore.solve.confidence import expected_error, flag_unsupported
 from ltmstore.solve.select import AUTO, AUTO_METHODS, BLEND, Choice, choose_method, choose_params
 from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
-from ltmstore.stages.reconstruct_far import far_models, reconstruct_far
 from ltmstore.stages.resample import (
     Binning,
     bin_frames,
@@ -50,6 +46,10 @@ from ltmstore.stages.resample import (
     path_length,
     view_positions,
 )
+
+if TYPE_CHECKING:  # Dask loads where a near-light run needs it: a far-light run never does
+    import dask.array as da
+    from distributed import Client
 
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
@@ -80,6 +80,8 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
 
     Returns ``[[record]]``: seconds, the parameters used and the held-out errors behind them.
     """
+    from ltmstore.solve.confidence import expected_error, flag_unsupported  # SciPy: here
+
     start = time.perf_counter()
     (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
     batch = samples.reshape(-1, *samples.shape[2:])
@@ -122,6 +124,8 @@ def _write_samples(group: zarr.Group, name: str, frames: da.Array, binning: Binn
     lattice = binning.lattice
     samples = st.create_variable(group, name, ("y", "x", *lattice.dims),
                                  (*plan.image, *lattice.shape), chunks=plan.block)
+    import dask.array as da
+
     binned = bin_frames(frames, binning, tile=plan.tile).rechunk(plan.block, method="tasks")
     client.compute(da.store(binned, samples, lock=False, compute=False)).result()
     return samples
@@ -190,7 +194,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
     far = light_kind(group.attrs.get("acquisition", {})) == FAR
-    if far:
+    if far:  # the far-light models load only here (SciPy)
+        from ltmstore.stages.reconstruct_far import far_models
+
         far_models(method)
         if delta_rs is not None:
             raise LtmError("--delta-rs is a cell size on a plane; a far-light store takes "
@@ -229,10 +235,14 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
 def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -> dict:
     group = st.open_group(path, mode="r+")
     if light_kind(group.attrs["acquisition"]) == FAR:  # a thread pool is enough
+        from ltmstore.stages.reconstruct_far import reconstruct_far
+
         key = run_key(**{k: run[k] for k in ("lattice", "delta_rs", "method", "params", "auto",
                                              "color", "tile")})
         return reconstruct_far(group, lattice=run["lattice"], method=run["method"],
                                tile=run["tile"], progress=run["progress"], key=key)
+    from ltmstore.core.cluster import dask_client, is_small
+
     run = {**run, "tile": run["tile"] or 32}
     if client is not None:
         return _reconstruct(group, client, **run)
@@ -294,6 +304,8 @@ def tiles_name(variable: str) -> str:
 def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
                  params: dict, auto: bool, color: bool, tile: int, progress: bool,
                  resume: bool, force: bool) -> dict:
+    import dask.array as da
+
     plane = Plane.from_json(group.attrs["acquisition"]["plane"])
     r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     timings = {}
@@ -393,6 +405,8 @@ def check_solved(group: zarr.Group, name: str, plan: TilePlan, client: Client) -
     LtmError
         Naming the first tile at fault.
     """
+    import dask.array as da
+
     samples_name = SAMPLES if name == LTM else name.replace(LTM, SAMPLES, 1)
     samples = da.from_zarr(group[samples_name], chunks=plan.block)
     ltm = da.from_zarr(group[name], chunks=plan.block)
@@ -441,6 +455,9 @@ def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TileP
 
     Returns every tile's record (earlier runs' from their marks) and how many were solved now.
     """
+    import dask.array as da
+    from distributed import as_completed
+
     marks = _read_marks(out[TILES])
     tiles = da.from_zarr(samples, chunks=plan.block)
     records = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,

@@ -15,12 +15,15 @@ scattered onto the full lattice at the end.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import dask.array as da
 import numpy as np
 
 from ltmstore.core.dims import Lattice, P, Plane, Q, R, S
 from ltmstore.core.errors import LtmError
+
+if TYPE_CHECKING:
+    import dask.array as da
 
 
 @dataclass(frozen=True)
@@ -120,6 +123,8 @@ def bin_frames_masked(frames: da.Array, binning: Binning, *, block_frames: int =
     chunks), and keeps sums and counts only for the ``K`` visited cells. Memory per task: the
     tile's frames, a ``(tile, 2 K)`` partial and its ``(tile, M)`` means.
     """
+    import dask.array as da  # here: a far-light run never needs Dask
+
     chunk = frames.chunksize[1:]
     tile = tuple(c if c <= t else t for c, t in zip(chunk, tile, strict=True))
     per_frame = 4 * int(np.prod(tile))
@@ -156,6 +161,8 @@ def bin_frames(frames: da.Array, binning: Binning, *, block_frames: int = 512,
         The cell of every frame (``-1`` = not used). A lattice with view axes (6D) bins
         registered frames: see :func:`bin_frames_masked`.
     """
+    import dask.array as da  # here: a far-light run never needs Dask
+
     if len(binning.lattice.shape) > 2:
         return bin_frames_masked(frames, binning, block_frames=block_frames, tile=tile)
     frames = frames.rechunk((block_frames, *tile), method="tasks")  # splits: no P2P shuffle

@@ -15,9 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
-from skimage import data as skdata
-from skimage.transform import resize
 
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import srgb_to_linear
@@ -126,8 +123,13 @@ def make_scene(name: str, *, size: int = 128, seed: int = 0,
     return _BUILDERS[name](size, pitch, rng)
 
 
-def _picture(image: np.ndarray, size: int) -> np.ndarray:
-    """Centre-crop a uint8 sRGB picture to a square, resize, linearise, map into [0.03, 0.8]."""
+def _picture(name: str, size: int) -> np.ndarray:
+    """scikit-image's sample picture ``name``, centre-cropped to a square, resized, linearised
+    and mapped into [0.03, 0.8]."""
+    from skimage import data  # here: listing the scenes (the CLI's choices) needs no skimage
+    from skimage.transform import resize
+
+    image = getattr(data, name)()
     h, w = image.shape[:2]
     side = min(h, w)
     top, left = (h - side) // 2, (w - side) // 2
@@ -169,6 +171,8 @@ def _strokes(size: int, rng: np.random.Generator, *, count: int, height: tuple[f
 
 
 def _smooth(height: np.ndarray, sigma_px: float) -> np.ndarray:
+    from scipy import ndimage
+
     return ndimage.gaussian_filter(height, sigma_px, mode="nearest")
 
 
@@ -188,7 +192,7 @@ def _canvas(size: int, pitch: float, rng: np.random.Generator) -> Scene:
     height = _smooth(np.minimum(height, 1.0e-3), 0.6)
     per_stroke = rng.uniform(0.12, 0.4, 260)
     roughness = np.where(ids >= 0, per_stroke[ids], 0.5)
-    return _dielectric(_picture(skdata.coffee(), size), height, roughness, pitch, "canvas")
+    return _dielectric(_picture("coffee", size), height, roughness, pitch, "canvas")
 
 
 def _icon(size: int, pitch: float, rng: np.random.Generator) -> Scene:
@@ -198,7 +202,7 @@ def _icon(size: int, pitch: float, rng: np.random.Generator) -> Scene:
     gold = (np.minimum.reduce([u, v, 1 - u, 1 - v]) < 0.08) | ((ring > 0.17) & (ring < 0.26))
     paint, _ = _strokes(size, rng, count=120, height=(0.1e-3, 0.35e-3))
     height = _smooth(np.where(gold, 0.3e-3, np.minimum(paint, 0.6e-3)), 0.7)
-    albedo = np.where(gold[..., None], 0.0, _picture(skdata.astronaut(), size))
+    albedo = np.where(gold[..., None], 0.0, _picture("astronaut", size))
     spec = np.where(gold[..., None], GOLD, DIELECTRIC_F0)
     roughness = np.where(gold, 0.1, 0.25)
     return _dielectric(albedo, height, roughness, pitch, "icon",
@@ -214,7 +218,7 @@ def _relief(size: int, pitch: float, rng: np.random.Generator) -> Scene:
     paint, _ = _strokes(size, rng, count=160, height=(0.2e-3, 0.5e-3))
     relief = np.select([frame, block, boss], [8e-3, 6e-3, 4e-3], 0.0)
     height = _smooth(np.where(relief > 0, relief, np.minimum(paint, 0.8e-3)), 0.5)
-    albedo = _picture(skdata.chelsea(), size)
+    albedo = _picture("chelsea", size)
     albedo = np.where(frame[..., None], [0.30, 0.17, 0.08], albedo)
     albedo = np.where((block | boss)[..., None], [0.75, 0.72, 0.66], albedo)
     roughness = np.select([frame, block | boss], [0.35, 0.6], 0.2)

@@ -1,0 +1,235 @@
+"""Speed on classic RTI captures: ``ltm ingest-rti`` + ``ltm reconstruct`` as whole commands, and
+the fit alone, beside the C++ Relight fitter when one is installed.
+
+Run: ``python bench/rti_speed.py [--data ../shared/data] [--out bench/results] [--repeats 3]
+[--relight-cli PATH] [--before OLD.json]``.
+
+For each real capture of ``--data`` (icon, coin, loewenkopf) and a 0.22 MP, 47-light capture
+(the peer's benchmark size: the SynthRTI scene ``multi-obj1-material1``'s first 47 dome
+photographs resized to 469 x 469, written as JPEG to a temporary folder, never into the
+repository), the median of ``--repeats`` runs of:
+
+* ``ltm ingest-rti`` and ``ltm reconstruct`` as subprocesses: wall time, Python start-up and
+  imports included, and their CPU time (user + system, all threads);
+* the same two library calls in this process (no start-up), and from the ``reconstruct``
+  record the fit alone: reading the frames and building the models (``prepare_s``) plus the
+  leave-one-light-out choice of every tile's model (``fit_s``); ``solve_s`` adds evaluating
+  the chosen models on the lattice for every pixel and writing ``ltm``;
+* ``ltm --help`` (what the command costs before it does anything);
+* ``relight-cli -b BASIS CAPTURE OUT`` for each of ``--relight-bases``, when ``--relight-cli``
+  (default: ``relight-cli`` on ``PATH``) exists; the column is left out otherwise.
+
+The machine is shared: the load average is recorded before and after each capture, beside the
+numbers (medians, no CPU pinning). Writes ``rti_speed.json`` and ``rti_speed.png`` to ``--out``;
+``--before`` draws an earlier run's JSON beside this one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ltmstore.capture.lp import read_lp
+from ltmstore.core.provenance import commit
+from ltmstore.core.store import open_group
+from ltmstore.stages.ingest_rti import ingest_rti
+from ltmstore.stages.reconstruct import reconstruct
+
+REAL = ("realrti-item9-coin", "realrti-item3-icon", "loewenkopf")
+PEER_SCENE = "synthrti/multi-obj1-material1"
+PEER_SIZE = (0.22e6, 47)  # pixels, lights: the capture relight-cli fits in 0.4-0.8 s
+TARGET_BOTH_S, TARGET_FIT_S = 5.0, 1.0
+
+
+def ltm_command() -> list[str]:
+    """The ``ltm`` console script beside this Python, or the same entry point through it."""
+    script = Path(sys.executable).with_name("ltm")
+    if script.exists():
+        return [str(script)]
+    return [sys.executable, "-c", "import sys; from ltmstore.cli import main; sys.exit(main())"]
+
+
+def run(command: list[str]) -> tuple[float, float]:
+    """Wall and CPU seconds (user + system of the child and its threads) of ``command``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    subprocess.run(command, check=True, capture_output=True)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def load() -> list[float]:
+    return [round(v, 2) for v in os.getloadavg()]
+
+
+def peer_capture(data: Path, tmp: Path) -> Path:
+    """The first 47 dome photographs of :data:`PEER_SCENE` resized to about 0.22 MP (JPEG)."""
+    pixels, lights = PEER_SIZE
+    lp = data / PEER_SCENE / "dome" / "dirs.lp"
+    names, directions = read_lp(lp)
+    folder = tmp / "peer-0.22MP-47"
+    folder.mkdir()
+    lines = [str(lights)]
+    for i, name in enumerate(names[:lights]):
+        image = cv2.imread(str(lp.parent / name), cv2.IMREAD_COLOR)
+        side = round(np.sqrt(pixels))
+        big = cv2.resize(image, (side, side), interpolation=cv2.INTER_CUBIC)
+        cv2.imwrite(str(folder / f"im{i:02d}.jpg"), big, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        lines.append(f"im{i:02d}.jpg {' '.join(f'{v:.6f}' for v in directions[i])}")
+    (folder / "dirs.lp").write_text("\n".join(lines) + "\n")
+    return folder / "dirs.lp"
+
+
+def speed(lp: Path, tmp: Path, repeats: int, relight_cli: str | None,
+          bases: list[str]) -> dict:
+    """Medians over ``repeats`` of the whole commands, the library calls and the fit."""
+    ltm = ltm_command()
+    store = tmp / "speed.zarr"
+    rows: dict[str, list[float]] = {}
+
+    def add(key: str, value: float) -> None:
+        rows.setdefault(key, []).append(value)
+
+    load_before = load()
+    for _ in range(repeats):
+        wall, cpu = run([*ltm, "ingest-rti", str(lp), str(store), "--overwrite"])
+        add("ingest_rti_s", wall)
+        add("ingest_rti_cpu_s", cpu)
+        wall, cpu = run([*ltm, "reconstruct", str(store)])
+        add("reconstruct_s", wall)
+        add("reconstruct_cpu_s", cpu)
+        add("both_s", rows["ingest_rti_s"][-1] + wall)
+        start = time.perf_counter()
+        ingest_rti(lp, store, overwrite=True, progress=False)
+        add("ingest_call_s", time.perf_counter() - start)
+        start = time.perf_counter()
+        reconstruct(store, progress=False)
+        add("reconstruct_call_s", time.perf_counter() - start)
+        timings = open_group(store).attrs["stages"]["reconstruct"]["timings"]
+        add("fit_s", timings["prepare_s"] + timings["fit_s"])
+        add("fit_and_write_ltm_s", timings["prepare_s"] + timings["solve_s"])
+        for basis in bases if relight_cli else ():
+            out = tmp / f"relight-{basis}"
+            shutil.rmtree(out, ignore_errors=True)
+            add(f"relight_cli_{basis}_s", run([relight_cli, "-b", basis, str(lp.parent),
+                                                str(out)])[0])
+    names, _ = read_lp(lp)
+    height, width = open_group(store)["frames"].shape[1:]
+    result = {key: statistics.median(values) for key, values in rows.items()}
+    return {**result, "repeats": repeats, "lights": len(names), "pixels": int(height * width),
+            "load_before": load_before, "load_after": load()}
+
+
+def help_cost(repeats: int) -> dict:
+    """Median wall and CPU seconds of ``ltm --help``."""
+    runs = [run([*ltm_command(), "--help"]) for _ in range(repeats)]
+    return {"wall_s": statistics.median(r[0] for r in runs),
+            "cpu_s": statistics.median(r[1] for r in runs)}
+
+
+def chart(result: dict, before: dict | None, path: Path) -> None:
+    """Bars per capture: the two commands (wall) against 5 s, the fit against 1 s."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(result["captures"])
+    runs = [("before", before), ("now", result)] if before else [("now", result)]
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.4))
+    width = 0.8 / len(runs)
+    x = np.arange(len(names))
+    for k, (label, res) in enumerate(runs):
+        rows = [res["captures"].get(n, {}) for n in names]
+        ingest = [r.get("ingest_rti_s", np.nan) for r in rows]
+        rec = [r.get("reconstruct_s", np.nan) for r in rows]
+        pos = x + (k - (len(runs) - 1) / 2) * width
+        axes[0].bar(pos, ingest, width, label=f"ingest-rti ({label})", alpha=0.5 + 0.5 * k)
+        axes[0].bar(pos, rec, width, bottom=ingest, label=f"reconstruct ({label})",
+                    alpha=0.5 + 0.5 * k)
+        axes[1].bar(pos, [r.get("ingest_rti_cpu_s", np.nan) + r.get("reconstruct_cpu_s", np.nan)
+                          for r in rows], width, label=f"CPU ({label})", alpha=0.5 + 0.5 * k)
+        axes[2].bar(pos, [r.get("fit_s", np.nan) for r in rows], width,
+                    label=f"fit ({label})", alpha=0.5 + 0.5 * k)
+        cli = [r.get("relight_cli_rbf_s", np.nan) for r in rows]
+        if label == "now" and np.isfinite(cli).any():
+            axes[2].bar(pos + width / 2, cli, width / 2, label="relight-cli rbf")
+    axes[0].axhline(TARGET_BOTH_S, color="k", ls="--", lw=1, label=f"{TARGET_BOTH_S:g} s")
+    axes[2].axhline(TARGET_FIT_S, color="k", ls="--", lw=1, label=f"{TARGET_FIT_S:g} s")
+    axes[0].set_title("ingest-rti + reconstruct, whole commands (wall)", fontsize=10)
+    axes[1].set_title("the same two commands: CPU time (user + system)", fontsize=10)
+    axes[2].set_title("fit alone: read frames, models, leave-one-out choice", fontsize=10)
+    for ax in axes:
+        ax.set_xticks(x, [n.replace("realrti-item", "") for n in names], fontsize=8)
+        ax.set_ylabel("seconds")
+        ax.legend(fontsize=7)
+    loads = "; ".join(f"{label}: load average {res['load_start']} -> {res['load_end']}"
+                      for label, res in runs)
+    fig.suptitle(f"{loads} ({os.cpu_count()} cores); medians of {result['repeats']}",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", default=Path("../shared/data"), type=Path)
+    parser.add_argument("--out", default=Path("bench/results"), type=Path)
+    parser.add_argument("--repeats", default=3, type=int)
+    parser.add_argument("--relight-cli", default=shutil.which("relight-cli"))
+    parser.add_argument("--relight-bases", default="rbf,hsh,ptm")
+    parser.add_argument("--before", type=Path, help="an earlier rti_speed.json to draw beside")
+    parser.add_argument("--only", help="comma-separated capture names (default: all)")
+    args = parser.parse_args()
+    relight_cli = args.relight_cli if args.relight_cli and Path(args.relight_cli).exists() \
+        else None
+    bases = args.relight_bases.split(",")
+    result = {"machine": {"platform": platform.platform(), "python": platform.python_version(),
+                          "cores": os.cpu_count()},
+              "command": "python " + " ".join(sys.argv), "commit": commit(),
+              "repeats": args.repeats,
+              "load_start": load(), "relight_cli": relight_cli,
+              "help": help_cost(args.repeats), "captures": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        lps = {name: args.data / name / "dirs.lp" for name in REAL
+               if (args.data / name / "dirs.lp").is_file()}
+        if (args.data / PEER_SCENE).is_dir():
+            lps["peer-0.22MP-47"] = peer_capture(args.data, tmp)
+        if args.only:
+            lps = {k: v for k, v in lps.items() if k in args.only.split(",")}
+        for name, lp in lps.items():
+            row = speed(lp, tmp, args.repeats, relight_cli, bases)
+            result["captures"][name] = row
+            print(f"{name:>20s} {row['pixels'] / 1e6:.2f} MP {row['lights']:3d} lights: "
+                  f"ingest-rti {row['ingest_rti_s']:.2f} s + reconstruct "
+                  f"{row['reconstruct_s']:.2f} s = {row['both_s']:.2f} s "
+                  f"(CPU {row['ingest_rti_cpu_s']:.2f} + {row['reconstruct_cpu_s']:.2f} s); "
+                  f"fit {row['fit_s']:.2f} s; load {row['load_before']} -> "
+                  f"{row['load_after']}", flush=True)
+    result["load_end"] = load()
+    print(f"ltm --help: {result['help']['wall_s']:.2f} s wall, {result['help']['cpu_s']:.2f} s "
+          "CPU")
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "rti_speed.json").write_text(json.dumps(result, indent=1))
+    before = json.loads(args.before.read_text()) if args.before else None
+    chart(result, before, args.out / "rti_speed.png")
+    print(f"wrote {args.out / 'rti_speed.json'} and {args.out / 'rti_speed.png'}")
+
+
+if __name__ == "__main__":
+    main()
