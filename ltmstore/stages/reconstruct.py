@@ -20,6 +20,7 @@ import zarr
 from distributed import Client, as_completed
 from tqdm.auto import tqdm
 
+from ltmstore.core import checksum
 from ltmstore.core import store as st
 from ltmstore.core.cluster import dask_client, is_small
 from ltmstore.core.dims import (
@@ -40,6 +41,7 @@ from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.confidence import expected_error, flag_unsupported
 from ltmstore.solve.select import AUTO, AUTO_METHODS, Choice, choose_method, choose_params
+from ltmstore.stages.by_light import write_by_light
 from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
 from ltmstore.stages.reconstruct_far import far_models, reconstruct_far
 from ltmstore.stages.resample import (
@@ -343,7 +345,8 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
 
     for name in ltm_names:
         st.create_variable(group, name, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
-                           chunks=plan.chunks, shards=plan.shards)
+                           chunks=plan.chunks, shards=plan.shards,
+                           compressors=checksum.LTM_COMPRESSORS)
         st.create_variable(group, tiles_name(name), ("tile_y", "tile_x"), plan.grid,
                            chunks=(1, 1), dtype=str, fill_value="")
     st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
@@ -375,8 +378,11 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
+    start = time.perf_counter()
     for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
         check_solved(group, name, plan, client)
+        write_by_light(group, name)  # the light-major copy that relight reads
+    timings["by_light_s"] = time.perf_counter() - start
     for name in [LTM, *CHROMA_LTM.values()]:
         if tiles_name(name) in group:
             del group[tiles_name(name)]
