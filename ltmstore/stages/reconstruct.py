@@ -191,6 +191,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     path = os.path.abspath(path)  # Dask workers resolve a relative path in their own folder
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
+    if "frames" not in group:
+        raise LtmError(f"store {str(path)!r} holds no frames (`ltm compact` dropped them); "
+                       "ingest the acquisition again to reconstruct it")
     far = light_kind(group.attrs.get("acquisition", {})) == FAR
     if far:
         far_models(method)

@@ -107,6 +107,34 @@ def light_weights(ltm: xr.DataArray, light: tuple[float, float]) -> list[tuple[d
     return _cell_weights(("r", ltm["r"].values, r), ("s", ltm["s"].values, s))
 
 
+def disk_light(ltm: xr.DataArray, centre: tuple[float, float], radius: float, *,
+               samples: int = 8) -> xr.DataArray:
+    """An area light: a uniform disk on the plane, as weights over the lattice ``(r, s)``.
+
+    Each cell's weight is proportional to the part of the disk that falls in it (``samples`` x
+    ``samples`` points per cell), and the weights sum to 1: the power of one point light,
+    spread over the cells the disk covers (a disk smaller than a cell covers at least the cell
+    of its centre). Relight it with ``relight(store, weights)``: only the cells the disk
+    covers are read.
+    """
+    if not (np.isfinite(radius) and radius > 0):
+        raise LtmError(f"area light radius {radius!r} must be a positive number")
+    axes = []
+    for dim, c in zip(("r", "s"), centre, strict=True):
+        centres = ltm[dim].values
+        step = float(centres[1] - centres[0]) if len(centres) > 1 else 2 * radius
+        offsets = (np.arange(samples) + 0.5) / samples - 0.5
+        axes.append((centres[:, None] + step * offsets[None, :] - c, step))
+    (dr, _), (ds_, _) = axes
+    inside = (dr[:, None, :, None] ** 2 + ds_[None, :, None, :] ** 2) <= radius ** 2
+    weights = inside.mean(axis=(2, 3))
+    if not weights.any():
+        weights = np.zeros_like(weights)
+        weights[tuple(np.argmin(np.abs(d[:, samples // 2])) for d, _ in axes)] = 1.0
+    weights = weights / weights.sum()
+    return xr.DataArray(weights, dims=("r", "s"), coords={"r": ltm["r"], "s": ltm["s"]})
+
+
 def extrapolation_weights(ltm: xr.DataArray, plane: Plane, directions: np.ndarray) -> np.ndarray:
     """``(n, R, S)`` weights over a near-light lattice that evaluate, at unit ``directions``,
     the least-squares order-2 hemispherical harmonics fit of every pixel's lattice values."""
