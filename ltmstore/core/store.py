@@ -253,11 +253,11 @@ def create_variable(
     shards: Sequence[int] | None = None,
     fill_value=np.nan,
     attrs: dict | None = None,
-    compressors: Sequence = checksum.COMPRESSORS,
+    compressors: Sequence | None = None,
 ) -> zarr.Array:
     """Create an empty named-dimension array (overwriting one of the same name).
 
-    ``compressors`` must end with a CRC32C (:mod:`ltmstore.core.checksum`).
+    ``compressors`` (default :data:`ltmstore.core.checksum.COMPRESSORS`) must end with a CRC32C.
     """
     if name in group:
         del group[name]
@@ -270,7 +270,7 @@ def create_variable(
         fill_value=fill_value,
         dimension_names=tuple(dims),
         overwrite=True,
-        compressors=tuple(compressors),
+        compressors=tuple(checksum.COMPRESSORS if compressors is None else compressors),
         config=checksum.ARRAY_CONFIG,
     )
     if attrs:

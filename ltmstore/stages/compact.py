@@ -7,8 +7,8 @@ acquisition then). :func:`compact` rewrites the store on a linked copy beside it
 failure or a kill leaves the store as it was:
 
 * every LTM variable is rewritten with :data:`ltmstore.core.checksum.LTM_COMPRESSORS` (lossless)
-  in the chosen precision, and its light-major copy (:mod:`ltmstore.stages.by_light`) is
-  written when missing;
+  in the chosen precision, with its light-major copy (:mod:`ltmstore.stages.by_light`) in a
+  near-light store;
 * ``precision="float16"`` (lossy) halves the LTM before compression; its cost, the SNR of the
   float16 LTM against the float32 one, is measured here and recorded;
 * ``frames`` and ``frame_chroma`` are dropped unless ``keep_frames`` (a far-light store keeps
@@ -100,12 +100,14 @@ def _compact_copy(path: Path, side: Path, dtype, drop: list[str]) -> dict:
     source = st.open_group(path, mode="r")
     target = zarr.open_group(str(side), mode="r+", zarr_format=3)
     signal = noise = 0.0
+    near = light_kind(source.attrs.get("acquisition", {})) != FAR
     for name in LTM_NAMES:
         if name not in source:
             continue
         s, n = _rewrite(source[name], target, name, dtype)
         signal, noise = signal + s, noise + n
-        write_by_light(target, name)
+        if near:  # a far-light store relights from its frames, not from its ltm
+            write_by_light(target, name)
     for name in drop:
         shutil.rmtree(side / name, ignore_errors=True)  # the copy's links: the store keeps its
     lossy = np.dtype(dtype) != np.float32
