@@ -46,7 +46,7 @@ def light_major_shard(store):
     its first cell (the first inner chunk: the bytes flipped below reach it)."""
     group = open_group(store)
     size = group["ltm_by_light"].shards[2:]
-    cells = [n if len(group[d]) > n else 0 for d, n in zip("rs", size, strict=True)]
+    cells = [n if group[d].shape[0] > n else 0 for d, n in zip("rs", size, strict=True)]
     light = ",".join(str(float(group[d][c])) for d, c in zip("rs", cells, strict=True))
     return store.joinpath("ltm_by_light", "c", "0", "0",
                           *(str(c // n) for c, n in zip(cells, size, strict=True))), light
