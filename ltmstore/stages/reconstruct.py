@@ -381,9 +381,10 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
-    start = time.perf_counter()
     for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
         check_solved(group, name, plan, client)
+    start = time.perf_counter()
+    for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
         write_by_light(group, name)  # the light-major copy that relight reads
     timings["by_light_s"] = time.perf_counter() - start
     for name in [LTM, *CHROMA_LTM.values()]:

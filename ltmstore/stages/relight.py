@@ -29,6 +29,7 @@ from __future__ import annotations
 import os
 import warnings
 
+import dask.array as da
 import numpy as np
 import xarray as xr
 
@@ -350,13 +351,40 @@ def _relight_pattern(ds: xr.Dataset, lights: xr.DataArray, view, color: bool) ->
     def apply(ltm: xr.DataArray) -> xr.DataArray:
         ltm = ltm.isel(box)
         if views is None:
-            return xr.dot(ltm, pattern, dim=["r", "s"])
+            return _dot_cells(ltm, pattern) if _one_chunk_per_cell(ltm) else xr.dot(
+                ltm, pattern, dim=["r", "s"])
         if len(views) == 1:
             return xr.dot(_point_image(ltm, vweights[0]), pattern, dim=["r", "s"])
         return xr.concat([xr.dot(_point_image(ltm, vw), pattern.isel({LIGHT: k}),
                                  dim=["r", "s"]) for k, vw in enumerate(vweights)],
                          dim=LIGHT)
     return _finish(ds, apply, views, color)
+
+
+def _one_chunk_per_cell(ltm: xr.DataArray) -> bool:
+    """Whether ``ltm`` (y, x, r, s) is Dask-backed with one chunk per cell (light-major)."""
+    return (ltm.chunks is not None and ltm.dims == ("y", "x", "r", "s")
+            and all(c == 1 for dim in ("r", "s") for c in ltm.chunksizes[dim]))
+
+
+def _dot_cells(ltm: xr.DataArray, pattern: xr.DataArray,
+               group_bytes: int = 64 * 2**20) -> xr.DataArray:
+    """``xr.dot(ltm, pattern)`` over ``(r, s)`` on a light-major LTM: each cell with a weight
+    is read as one plane, the planes stacked in groups of about ``group_bytes``, each group
+    contracted in one task (a few hundred tasks, not one per chunk pair)."""
+    weights = np.asarray(pattern.transpose(LIGHT, "r", "s").values)
+    cells = np.argwhere((weights != 0).any(axis=0))
+    if not len(cells):
+        return xr.dot(ltm, pattern, dim=["r", "s"])
+    data = ltm.data
+    plane = max(ltm.chunksizes["y"]) * max(ltm.chunksizes["x"]) * data.dtype.itemsize
+    planes = da.stack([data[:, :, i, j] for i, j in cells]).rechunk(
+        {0: max(1, group_bytes // plane)})
+    used = weights[:, cells[:, 0], cells[:, 1]].astype(data.dtype)  # in the LTM's precision
+    image = da.tensordot(used, planes, axes=1)
+    coords = {**{k: c for k, c in ltm.coords.items() if set(c.dims) <= {"y", "x"}},
+              **{k: c for k, c in pattern.coords.items() if c.dims == (LIGHT,)}}
+    return xr.DataArray(image, dims=(LIGHT, "y", "x"), coords=coords)
 
 
 def _support(pattern: xr.DataArray) -> dict[str, slice]:
