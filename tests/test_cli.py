@@ -20,7 +20,7 @@ def one_line_error(proc, pattern: str) -> None:
 
 
 @pytest.mark.parametrize("command", ["demo", "simulate", "ingest", "ingest-rti", "reconstruct",
-                                     "relight", "evaluate", "info", "bench"])
+                                     "relight", "compact", "evaluate", "info", "bench"])
 def test_every_command_has_help(command):
     proc = run_ltm(command, "--help")
     assert proc.returncode == 0 and "usage: ltm" in proc.stdout
@@ -34,6 +34,8 @@ def test_every_command_has_help(command):
     (["reconstruct", "{tmp}/missing.zarr", "--lattice", "12"], "--lattice '12'"),
     (["reconstruct", "{tmp}/missing.zarr", "--method", "magic"], "invalid choice: 'magic'"),
     (["relight", "{tmp}/missing.zarr", "--light", "1;2"], "'1;2' must look like R,S"),
+    (["relight", "{tmp}/missing.zarr", "--light", "-0.1"], "'-0.1' must look like R,S"),
+    (["compact", "{tmp}/missing.zarr"], "does not exist"),
     (["ingest", "{tmp}/nowhere", "{tmp}/s.zarr"], "nowhere"),
 ])
 def test_bad_arguments_give_one_line_errors(args, pattern, tmp_path):
@@ -90,3 +92,23 @@ def test_ingest_errors_reach_the_user_as_one_line(case, tmp_path):
     one_line_error(run_ltm("ingest", acq, tmp_path / "store.zarr"), pattern)
     assert tree_hashes(acq) == before
     assert not (tmp_path / "store.zarr").exists()
+
+
+def test_relight_takes_negative_values_and_writes_one_image_per_light(small_store, tmp_path):
+    """``--light -0.1,0`` and ``--light=-0.1,0`` (argparse alone reads the first as an option);
+    several lights: one image each, named by the ``{i}`` pattern."""
+    import imageio.v3 as iio
+
+    proc = run_ltm("relight", small_store, "--light", "-0.1,0", "--light=-0.1,0", "--light",
+                   "0.05,-0.02", "-o", tmp_path / "relit-{i}.png")
+    assert proc.returncode == 0, proc.stderr
+    images = [iio.imread(tmp_path / f"relit-{i}.png") for i in range(3)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"relit-{i}.png" for i in range(3)]
+    assert (images[0] == images[1]).all() and not (images[0] == images[2]).all()
+
+
+def test_relight_sum_and_negative_directions(small_store, tmp_path):
+    proc = run_ltm("relight", small_store, "--direction", "-0.3,0.2,1", "--direction=0.2,-0.1,1",
+                   "--sum", "-o", tmp_path / "both.png")
+    assert proc.returncode == 0, proc.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["both.png"]

@@ -87,3 +87,23 @@ def test_a_point_light_reads_only_the_chunks_it_needs(store):
 def test_bad_lights_are_clear_errors(store):
     with pytest.raises(LtmError, match="must be finite"):
         relight(store, [(np.nan, 0.0)])
+
+
+def test_the_light_major_copy_relights_the_same(store, tmp_path):
+    """Point lights bit for bit, weight patterns within rounding, reading fewer bytes."""
+    import shutil
+
+    from ltmstore.stages.by_light import write_by_light
+
+    copy = shutil.copytree(store, tmp_path / "copy.zarr")
+    write_by_light(st.open_group(copy, mode="r+"), "ltm")
+    lights = [(0.013, -0.377), (0.9, 0.9)]
+    weights = xr.DataArray(np.zeros(LATTICE.shape), dims=("r", "s"))
+    weights[3:6, 8:12] = np.random.default_rng(1).random((3, 4))
+    for query in (lights, weights):
+        before = relight(store, query).values
+        counting = st.CountingStore(LocalStore(str(copy), read_only=True))
+        after = relight(st.open_store(counting), query).values
+        np.testing.assert_allclose(after, before, rtol=1e-6)
+        assert counting.bytes_read < np.prod(SIZE) * 4 * 16  # 12 cells read at most
+    assert np.array_equal(relight(copy, lights).values, relight(store, lights).values)

@@ -50,7 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")  # cluster chatter off
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg quiet: our errors say it
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
-    args = build_parser().parse_args(argv)
+    from ltmstore.cli.args import join_signed_values
+
+    args = build_parser().parse_args(join_signed_values(sys.argv[1:] if argv is None else argv))
     shown = warnings.showwarning
     warnings.showwarning = partial(_one_line_warning, shown)
     try:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,26 @@ def numbers(names: str, unit: str = "plane units"):
             raise argparse.ArgumentTypeError(f"{text!r} must look like {names} ({unit})")
         return values
     return parse
+
+
+# Options whose values are numbers that may start with a minus (``--light -0.1,0``).
+SIGNED_OPTIONS = ("--light", "--direction", "--view")
+_SIGNED_VALUE = re.compile(r"^-[0-9.]")
+
+
+def join_signed_values(argv: list[str], options=SIGNED_OPTIONS) -> list[str]:
+    """``[..., "--light", "-0.1,0"]`` becomes ``[..., "--light=-0.1,0"]``, so that argparse does
+    not read the negative value as an option (it reads only plain negative numbers so)."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in options and i + 1 < len(argv) and _SIGNED_VALUE.match(argv[i + 1]):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
 
 
 def number(text: str) -> float:

@@ -1,5 +1,5 @@
-"""``ltm`` commands of the pipeline: demo, simulate, ingest, reconstruct, relight, evaluate, bench,
-info."""
+"""``ltm`` commands of the pipeline: demo, simulate, ingest, reconstruct, relight, compact,
+evaluate, bench, info."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from ltmstore.cli.args import add_output, new_output, number, numbers, print_json
+from ltmstore.cli.args import number, numbers, print_json
 from ltmstore.core.errors import LtmError, LtmWarning
 
 
@@ -107,8 +107,27 @@ def register(sub) -> None:
                        "repeat to add lights")
     p.add_argument("--view", type=numbers("P,Q"), default=None, metavar="P,Q",
                    help="6D stores: camera position on the view plane (default: its centre)")
-    add_output(p, "relit.png", "image file")
+    p.add_argument("-o", "--output", default="relit.png",
+                   help="image file (default: %(default)s). With several lights, one image per "
+                   "light: {i} in the name is the light's number from 0 (relit-{i}.png), or "
+                   "without it -0, -1, ... before the suffix (relit-0.png, relit-1.png)")
+    p.add_argument("--sum", action="store_true",
+                   help="several lights: one image lit by all of them together")
+    p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_relight)
+
+    p = sub.add_parser("compact", help="recompress a reconstructed store and drop its frames",
+                       description="Rewrite the LTM losslessly compressed (or in float16 with "
+                       "--precision float16: lossy, its SNR is measured and printed) with its "
+                       "light-major copy for fast relighting, and drop the decoded frames "
+                       "(reconstructing again then needs a new ingest). Atomic: a failure "
+                       "leaves the store as it was. A far-light store keeps its frames (it "
+                       "relights from them).")
+    p.add_argument("store")
+    p.add_argument("--precision", choices=("float32", "float16"), default="float32",
+                   help="stored LTM precision (default: %(default)s, lossless)")
+    p.add_argument("--keep-frames", action="store_true", help="keep frames and frame_chroma")
+    p.set_defaults(func=cmd_compact)
 
     p = sub.add_parser("evaluate", help="held-out error; SNR_Y, PSNR, error maps against a truth",
                        description="Held-out error from the data alone (observed cells left "
@@ -225,16 +244,50 @@ def cmd_relight(a: argparse.Namespace) -> None:
         warnings.simplefilter("always", LtmWarning)
         lights = None if a.light is None else np.array(a.light)
         directions = None if a.direction is None else np.array(a.direction)
-        images = relight(ds, lights, directions=directions, view=a.view).sum("light").values[None]
+        images = relight(ds, lights, directions=directions, view=a.view)  # lazy: checks only
+        outputs = image_paths(a.output, images.sizes["light"], combined=a.sum,
+                              overwrite=a.overwrite)
+        images = (images.sum("light").values[None] if len(outputs) == 1 else images.values)
     for w in caught:
         print(f"ltm: warning: {w.message}", file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-    out = new_output(a)
-    try:
-        iio.imwrite(out, encode_images(images, transfer)[0])
-    except (OSError, ValueError) as exc:
-        raise LtmError(f"cannot write image {str(out)!r}: {exc}") from exc
-    print(f"wrote {out}")
+    for out, image in zip(outputs, encode_images(images, transfer), strict=True):
+        try:
+            iio.imwrite(out, image)
+        except (OSError, ValueError) as exc:
+            raise LtmError(f"cannot write image {str(out)!r}: {exc}") from exc
+        print(f"wrote {out}")
+
+
+def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool) -> list[Path]:
+    """The images of ``n`` lights: one (``combined``, or one light), else one per light named
+    by ``pattern`` with ``{i}`` (or ``-i`` before the suffix); existing ones refused unless
+    ``overwrite``."""
+    if combined and n > 1:
+        paths = [Path(pattern.replace("{i}", "sum"))]
+    elif "{i}" in pattern or n == 1:
+        paths = [Path(pattern.replace("{i}", str(i))) for i in range(n)]
+    else:
+        base = Path(pattern)
+        paths = [base.with_name(f"{base.stem}-{i}{base.suffix}") for i in range(n)]
+    existing = [p for p in paths if p.exists()]
+    if existing and not overwrite:
+        raise LtmError(f"output {str(existing[0])!r} already exists; pass --overwrite to "
+                       "replace it")
+    return paths
+
+
+def cmd_compact(a: argparse.Namespace) -> None:
+    from ltmstore.stages.compact import compact
+
+    info = compact(a.store, precision=a.precision, keep_frames=a.keep_frames)
+    mb = 1e6
+    what = [f"ltm {info['precision']}" + (f" (SNR {info['snr_db']:.1f} dB against float32)"
+                                          if info["snr_db"] is not None else " (lossless)"),
+            "frames dropped" if info["frames_dropped"] else
+            f"frames kept{': ' + info['frames_kept_reason'] if info['frames_kept_reason'] else ''}"]
+    print(f"{a.store}: {info['bytes_before'] / mb:.1f} MB -> {info['bytes_after'] / mb:.1f} MB; "
+          + "; ".join(what))
 
 
 def cmd_evaluate(a: argparse.Namespace) -> None:

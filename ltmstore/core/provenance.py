@@ -62,7 +62,9 @@ def summary(attrs: dict) -> dict:
         ``software`` (of the last completed stage), ``inputs`` (source, file names, sha256),
         ``parameters`` (of the reconstruct stage: lattice, method, solver settings, the run
         key), ``sampling`` (K, M, K/M, path density), ``frames`` (of ingest: how many, how
-        many valid, rejected per reason, e.g. ``occluded``, and dropped from a damaged video),
+        many valid, rejected per reason, e.g. ``occluded``, and dropped from a damaged video;
+        ``stored: false`` once ``ltm compact`` removed them), ``compact`` (when the store was
+        compacted: precision, SNR of a lossy LTM, whether frames were dropped),
         ``timings`` (seconds per stage) and ``stages`` (started/finished/complete per stage).
     """
     stages = dict(attrs.get("stages") or {})
@@ -70,6 +72,7 @@ def summary(attrs: dict) -> dict:
     rec = stages.get("reconstruct") or {}
     res = stages.get("resample") or {}
     ingest = stages.get("ingest") or {}
+    compact = stages.get("compact") or {}
     timings = {}
     if "seconds" in (stages.get("ingest") or {}):
         timings["ingest_s"] = stages["ingest"]["seconds"]
@@ -87,8 +90,13 @@ def summary(attrs: dict) -> dict:
                                            "lattice", "lattice_choice", "plan") if k in rec},
         "sampling": {k: sampling[k] for k in ("K", "M", "sampling_ratio", "path_density")
                      if k in sampling},
-        "frames": {k: ingest[k] for k in ("n_frames", "n_valid", "rejected", "dropped_frames")
-                   if k in ingest},
+        "frames": {**{k: ingest[k] for k in ("n_frames", "n_valid", "rejected",
+                                              "dropped_frames") if k in ingest},
+                   **({"stored": False, "removed_by": "ltm compact"}
+                      if compact.get("frames_dropped") else {})},
+        **({"compact": {k: compact[k] for k in ("precision", "snr_db", "frames_dropped",
+                                                "bytes_before", "finished") if k in compact}}
+           if compact else {}),
         "timings": timings,
         "stages": {name: {k: e[k] for k in ("complete", "started", "finished", "software",
                                             "commit", "tiles_solved", "tiles_resumed")

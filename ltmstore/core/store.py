@@ -41,8 +41,12 @@ STAGE_VARIABLES = {
                "pose_valid", "chroma", "chroma_spread"),
     "resample": ("samples", "count", "samples_cb", "samples_cr"),
     "reconstruct": ("ltm", "expected_error", "unsupported", "ltm_cb", "ltm_cr", "method_map",
-                    "ltm_tiles_done", "ltm_cb_tiles_done", "ltm_cr_tiles_done"),
+                    "ltm_tiles_done", "ltm_cb_tiles_done", "ltm_cr_tiles_done",
+                    "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light"),
 }
+# The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
+# ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
+LTM_VARIABLES = ("ltm", "ltm_cb", "ltm_cr", "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light")
 
 
 def _now() -> str:
@@ -252,8 +256,12 @@ def create_variable(
     shards: Sequence[int] | None = None,
     fill_value=np.nan,
     attrs: dict | None = None,
+    compressors: Sequence | None = None,
 ) -> zarr.Array:
-    """Create an empty named-dimension array (overwriting one of the same name)."""
+    """Create an empty named-dimension array (overwriting one of the same name).
+
+    ``compressors`` (default :data:`ltmstore.core.checksum.COMPRESSORS`) must end with a CRC32C.
+    """
     if name in group:
         del group[name]
     arr = group.create_array(
@@ -265,7 +273,7 @@ def create_variable(
         fill_value=fill_value,
         dimension_names=tuple(dims),
         overwrite=True,
-        compressors=checksum.COMPRESSORS,
+        compressors=tuple(checksum.COMPRESSORS if compressors is None else compressors),
         config=checksum.ARRAY_CONFIG,
     )
     if attrs:
@@ -326,6 +334,8 @@ def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dic
 def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     """Open a store as a lazy :class:`xarray.Dataset`, one Dask chunk per inner Zarr chunk.
 
+    LTM variables stored as float16 (a lossy reconstruction) come back as float32.
+
     ``path`` may also be a Zarr store object (e.g. a :class:`CountingStore`). Variables of
     stages that did not complete are dropped, so partial results are never served.
     """
@@ -346,6 +356,12 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
         for name in STAGE_VARIABLES.get(stage, ())
     }
     ds = ds.drop_vars([v for v in incomplete if v in ds.variables])
+    small = [n for n, v in ds.data_vars.items() if v.dims == ("t",)]  # poses: read them once
+    if small:
+        ds[small] = ds[small].compute()
+    for name in LTM_VARIABLES:  # a lossy store's float16 LTM computes in float32
+        if name in ds and ds[name].dtype == np.float16:
+            ds[name] = ds[name].astype(np.float32)
     ds.attrs = dict(group.attrs.asdict())
     return ds
 

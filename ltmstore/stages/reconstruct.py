@@ -19,6 +19,7 @@ import numpy as np
 import zarr
 from tqdm.auto import tqdm
 
+from ltmstore.core import checksum
 from ltmstore.core import store as st
 from ltmstore.core.dims import (
     CHROMA_CHANNELS,
@@ -37,6 +38,7 @@ from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.select import AUTO, AUTO_METHODS, BLEND, Choice, choose_method, choose_params
+from ltmstore.stages.by_light import write_by_light
 from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
 from ltmstore.stages.resample import (
     Binning,
@@ -193,6 +195,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     path = os.path.abspath(path)  # Dask workers resolve a relative path in their own folder
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
+    if "frames" not in group:
+        raise LtmError(f"store {str(path)!r} holds no frames (`ltm compact` dropped them); "
+                       "ingest the acquisition again to reconstruct it")
     far = light_kind(group.attrs.get("acquisition", {})) == FAR
     if far:  # the far-light models load only here (SciPy)
         from ltmstore.stages.reconstruct_far import far_models
@@ -355,7 +360,8 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
 
     for name in ltm_names:
         st.create_variable(group, name, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
-                           chunks=plan.chunks, shards=plan.shards)
+                           chunks=plan.chunks, shards=plan.shards,
+                           compressors=checksum.LTM_COMPRESSORS)
         st.create_variable(group, tiles_name(name), ("tile_y", "tile_x"), plan.grid,
                            chunks=(1, 1), dtype=str, fill_value="")
     st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
@@ -389,6 +395,10 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
     for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
         check_solved(group, name, plan, client)
+    start = time.perf_counter()
+    for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
+        write_by_light(group, name)  # the light-major copy that relight reads
+    timings["by_light_s"] = time.perf_counter() - start
     for name in [LTM, *CHROMA_LTM.values()]:
         if tiles_name(name) in group:
             del group[tiles_name(name)]

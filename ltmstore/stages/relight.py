@@ -6,7 +6,10 @@ that hold those cells. A light beyond the plane (or a direction that meets the p
 or never) is not clamped to the edge: its weights over the lattice are those of a hemispherical
 harmonics fit (order 2) of the whole lattice, evaluated at its direction (the model's own smooth
 extrapolation), with one :class:`LightExtrapolationWarning`. Any weight pattern over the lattice
-(an area light, an environment) is a weighted sum over all cells.
+(an area light, an environment) is a weighted sum over the cells it covers.
+
+Every query reads the LTM's light-major copy when the store has one
+(:mod:`ltmstore.stages.by_light`): a point light then reads its 4 cells' image planes only.
 
 Far-light store (a classic RTI capture, :mod:`ltmstore.stages.reconstruct_far`): a direction is
 evaluated by each tile's chosen model straight from the frames (no lattice in between; fitted,
@@ -26,6 +29,7 @@ from __future__ import annotations
 import os
 import warnings
 
+import dask.array as da
 import numpy as np
 import xarray as xr
 
@@ -57,6 +61,7 @@ from ltmstore.core.store import open_store
 from ltmstore.core.transfer import encode_images, linear_to_srgb, srgb_to_linear
 from ltmstore.solve.hsh import hsh_basis
 from ltmstore.solve.lightfit import Model
+from ltmstore.stages.by_light import light_major
 from ltmstore.stages.plan import METHOD_MAP
 
 LIGHT = "light"
@@ -101,6 +106,34 @@ def light_weights(ltm: xr.DataArray, light: tuple[float, float]) -> list[tuple[d
     """Bilinear weights of a point light inside the lattice: ``[({r: i, s: j}, weight)]``."""
     r, s = (float(v) for v in light)
     return _cell_weights(("r", ltm["r"].values, r), ("s", ltm["s"].values, s))
+
+
+def disk_light(ltm: xr.DataArray, centre: tuple[float, float], radius: float, *,
+               samples: int = 8) -> xr.DataArray:
+    """An area light: a uniform disk on the plane, as weights over the lattice ``(r, s)``.
+
+    Each cell's weight is proportional to the part of the disk that falls in it (``samples`` x
+    ``samples`` points per cell), and the weights sum to 1: the power of one point light,
+    spread over the cells the disk covers (a disk smaller than a cell covers at least the cell
+    of its centre). Relight it with ``relight(store, weights)``: only the cells the disk
+    covers are read.
+    """
+    if not (np.isfinite(radius) and radius > 0):
+        raise LtmError(f"area light radius {radius!r} must be a positive number")
+    axes = []
+    for dim, c in zip(("r", "s"), centre, strict=True):
+        centres = ltm[dim].values
+        step = float(centres[1] - centres[0]) if len(centres) > 1 else 2 * radius
+        offsets = (np.arange(samples) + 0.5) / samples - 0.5
+        axes.append((centres[:, None] + step * offsets[None, :] - c, step))
+    (dr, _), (ds_, _) = axes
+    inside = (dr[:, None, :, None] ** 2 + ds_[None, :, None, :] ** 2) <= radius ** 2
+    weights = inside.mean(axis=(2, 3))
+    if not weights.any():
+        weights = np.zeros_like(weights)
+        weights[tuple(np.argmin(np.abs(d[:, samples // 2])) for d, _ in axes)] = 1.0
+    weights = weights / weights.sum()
+    return xr.DataArray(weights, dims=("r", "s"), coords={"r": ltm["r"], "s": ltm["s"]})
 
 
 def extrapolation_weights(ltm: xr.DataArray, plane: Plane, directions: np.ndarray) -> np.ndarray:
@@ -164,8 +197,12 @@ def _views(ds: xr.Dataset, view, n: int) -> tuple[np.ndarray, list] | tuple[None
 
 
 def _point_image(ltm: xr.DataArray, weights: list[tuple[dict, float]]) -> xr.DataArray:
-    terms = [ltm.isel(**cell, drop=True) * w for cell, w in weights]
-    return sum(terms[1:], terms[0])
+    """``sum(w * ltm[cell])``, on the variable (no coordinate alignment: interactive speed)."""
+    var = ltm.variable
+    terms = [var.isel(cell) * w for cell, w in weights]
+    image = sum(terms[1:], terms[0])
+    return xr.DataArray(image, coords={k: c for k, c in ltm.coords.items()
+                                       if set(c.dims) <= set(image.dims)})
 
 
 def _as_dataset(store) -> xr.Dataset:
@@ -262,7 +299,7 @@ def _observed_directions(ds: xr.Dataset) -> np.ndarray | None:
     if "pose_valid" not in ds:
         return None
     valid = ds["pose_valid"].values.astype(bool)
-    r, s, z = (ds[k].values[valid] for k in ("pose_r", "pose_s", "pose_z"))
+    r, s, z = (np.asarray(ds[k])[valid] for k in ("pose_r", "pose_s", "pose_z"))
     if light_kind(ds.attrs.get("acquisition", {})) == FAR:
         return np.column_stack([r, s, z])
     return normalise(np.column_stack([r, s, z]))
@@ -308,9 +345,14 @@ def _relight_pattern(ds: xr.Dataset, lights: xr.DataArray, view, color: bool) ->
     pattern = lights if LIGHT in lights.dims else lights.expand_dims(LIGHT)
     views, vweights = _views(ds, view, pattern.sizes[LIGHT])
 
+    box = _support(pattern)
+    pattern = pattern.isel(box)
+
     def apply(ltm: xr.DataArray) -> xr.DataArray:
+        ltm = ltm.isel(box)
         if views is None:
-            return xr.dot(ltm, pattern, dim=["r", "s"])
+            return _dot_cells(ltm, pattern) if _one_chunk_per_cell(ltm) else xr.dot(
+                ltm, pattern, dim=["r", "s"])
         if len(views) == 1:
             return xr.dot(_point_image(ltm, vweights[0]), pattern, dim=["r", "s"])
         return xr.concat([xr.dot(_point_image(ltm, vw), pattern.isel({LIGHT: k}),
@@ -319,9 +361,47 @@ def _relight_pattern(ds: xr.Dataset, lights: xr.DataArray, view, color: bool) ->
     return _finish(ds, apply, views, color)
 
 
+def _one_chunk_per_cell(ltm: xr.DataArray) -> bool:
+    """Whether ``ltm`` (y, x, r, s) is Dask-backed with one chunk per cell (light-major)."""
+    return (ltm.chunks is not None and ltm.dims == ("y", "x", "r", "s")
+            and all(c == 1 for dim in ("r", "s") for c in ltm.chunksizes[dim]))
+
+
+def _dot_cells(ltm: xr.DataArray, pattern: xr.DataArray,
+               group_bytes: int = 64 * 2**20) -> xr.DataArray:
+    """``xr.dot(ltm, pattern)`` over ``(r, s)`` on a light-major LTM: each cell with a weight
+    is read as one plane, the planes stacked in groups of about ``group_bytes``, each group
+    contracted in one task (a few hundred tasks, not one per chunk pair)."""
+    weights = np.asarray(pattern.transpose(LIGHT, "r", "s").values)
+    cells = np.argwhere((weights != 0).any(axis=0))
+    if not len(cells):
+        return xr.dot(ltm, pattern, dim=["r", "s"])
+    data = ltm.data
+    plane = max(ltm.chunksizes["y"]) * max(ltm.chunksizes["x"]) * data.dtype.itemsize
+    planes = da.stack([data[:, :, i, j] for i, j in cells]).rechunk(
+        {0: max(1, group_bytes // plane)})
+    used = weights[:, cells[:, 0], cells[:, 1]].astype(data.dtype)  # in the LTM's precision
+    image = da.tensordot(used, planes, axes=1)
+    coords = {**{k: c for k, c in ltm.coords.items() if set(c.dims) <= {"y", "x"}},
+              **{k: c for k, c in pattern.coords.items() if c.dims == (LIGHT,)}}
+    return xr.DataArray(image, dims=(LIGHT, "y", "x"), coords=coords)
+
+
+def _support(pattern: xr.DataArray) -> dict[str, slice]:
+    """The smallest box of lattice cells outside which every weight of ``pattern`` is zero
+    (an area light reads only the cells it covers)."""
+    weights = np.asarray(pattern.transpose(LIGHT, "r", "s").values)
+    used = weights != 0
+    box = {}
+    for dim, axis in (("r", 2), ("s", 1)):
+        hit = np.flatnonzero(used.any(axis=(0, axis)))
+        box[dim] = slice(int(hit[0]), int(hit[-1]) + 1) if len(hit) else slice(0, 1)
+    return box
+
+
 def _finish(ds: xr.Dataset, apply, views, color: bool) -> xr.DataArray:
     """Luminance (and colour) images of ``apply`` on the store's LTMs, clipped at 0."""
-    image = apply(ds[LTM]).transpose(LIGHT, "y", "x")
+    image = apply(light_major(ds, LTM)).transpose(LIGHT, "y", "x")
     if views is not None:
         n = image.sizes[LIGHT]
         image = image.assign_coords(view_p=(LIGHT, np.resize(views[:, 0], n)),
@@ -329,7 +409,8 @@ def _finish(ds: xr.Dataset, apply, views, color: bool) -> xr.DataArray:
     if not color:
         return image.clip(min=0)
     if all(name in ds for name in CHROMA_LTM.values()):  # a colour LTM
-        cb, cr = (apply(ds[CHROMA_LTM[c]]).transpose(LIGHT, "y", "x") for c in ("cb", "cr"))
+        cb, cr = (apply(light_major(ds, CHROMA_LTM[c])).transpose(LIGHT, "y", "x")
+                  for c in ("cb", "cr"))
         return _stack_rgb(image, cb, cr).clip(min=0)
     return (to_rgb(image, ds[CHROMA]) if CHROMA in ds else image).clip(min=0)
 
@@ -376,14 +457,30 @@ def _transfer(values: xr.DataArray, func) -> xr.DataArray:
 
 def to_rgb(luminance: xr.DataArray, chroma: xr.DataArray) -> xr.DataArray:
     """Linear RGB from luminance and chroma stored as ratios to luminance."""
-    cb = luminance * chroma.sel(channel="cb", drop=True)
-    cr = luminance * chroma.sel(channel="cr", drop=True)
-    return _stack_rgb(luminance, cb, cr)
+    order = [list(chroma["channel"].values).index(c) for c in ("cb", "cr")]
+
+    def rgb(y: np.ndarray, ratios: np.ndarray) -> np.ndarray:
+        return _rgb(y, y * ratios[..., order[0]], y * ratios[..., order[1]])
+    return _apply_rgb(rgb, [luminance, chroma], [[], ["channel"]])
 
 
 def _stack_rgb(y: xr.DataArray, cb: xr.DataArray, cr: xr.DataArray) -> xr.DataArray:
-    rgb = xr.concat(rgb_from_ycbcr(y, cb, cr), dim=COLOR)
-    return rgb.assign_coords({COLOR: list(COLOR_CHANNELS)}).transpose(..., COLOR)
+    """Linear RGB (dim ``color``, last) from Y, Cb and Cr, in one blockwise step."""
+    return _apply_rgb(_rgb, [y, cb, cr], [[], [], []])
+
+
+def _rgb(y: np.ndarray, cb: np.ndarray, cr: np.ndarray) -> np.ndarray:
+    return np.stack(np.broadcast_arrays(*rgb_from_ycbcr(y, cb, cr)), axis=-1)
+
+
+def _apply_rgb(func, args: list[xr.DataArray], core: list[list[str]]) -> xr.DataArray:
+    probes = (np.zeros((1, *(a.sizes[d] for d in c)), a.dtype) for a, c in zip(args, core,
+                                                                                strict=True))
+    dtype = func(*probes).dtype
+    rgb = xr.apply_ufunc(func, *args, input_core_dims=core, output_core_dims=[[COLOR]],
+                         dask="parallelized", output_dtypes=[dtype],
+                         dask_gufunc_kwargs={"output_sizes": {COLOR: len(COLOR_CHANNELS)}})
+    return rgb.assign_coords({COLOR: list(COLOR_CHANNELS)})
 
 
 def write_gif(store, path: str | os.PathLike, lights, views=None, *, fps: float = 12) -> str:
