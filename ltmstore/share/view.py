@@ -31,7 +31,6 @@ import socket
 import threading
 import time
 import warnings
-from collections import OrderedDict
 from dataclasses import dataclass
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -42,21 +41,20 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 import xarray as xr
 
-from ltmstore.core.dims import CHROMA_LTM, EXPECTED_ERROR, LTM, P, Plane, Q
-from ltmstore.core.errors import LtmError
+from ltmstore.core.dims import EXPECTED_ERROR, LTM, P, Plane, Q
+from ltmstore.core.errors import LtmError, LtmWarning
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import encode, encode_images
-from ltmstore.stages.relight import relight
+from ltmstore.stages.by_light import by_light_name
+from ltmstore.stages.relight import disk_light, relight
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
           "/viewer.js": ("viewer.js", "text/javascript; charset=utf-8"),
           "/viewer.css": ("viewer.css", "text/css; charset=utf-8")}
 DISK_EDGE = 0.98  # far-light stores: (lx, ly) kept inside this radius (a light above the horizon)
-AREA_SUBSAMPLES = 4  # per lattice cell and axis, for the coverage of a disk light
 CACHED_BYTES = 32 * 2**20  # variables up to this size are held in memory
-CACHE_BYTES = 768 * 2**20  # LTM blocks kept in memory (least recently used out)
 FAR_AREA_SAMPLES = 5  # directions per axis of a far-light area light's square grid
 
 
@@ -100,7 +98,10 @@ class Viewer:
         if LTM not in ds:
             raise LtmError(f"store {str(store)!r} has no complete ltm; run `ltm reconstruct` "
                            "first")
-        self.ds = in_memory(wide_chunks(ds, store))
+        if by_light_name(LTM) not in ds:
+            warnings.warn(f"{store}: no light-major copy of ltm, so each new light reads every "
+                          "pixel tile; `ltm compact STORE` adds it", LtmWarning, stacklevel=2)
+        self.ds = in_memory(ds)
         acq = self.ds.attrs.get("acquisition", {})
         self.far = light_kind(acq) == FAR
         self.transfer = acq.get("transfer", "srgb")
@@ -137,29 +138,6 @@ class Viewer:
             view = tuple(float(np.mean(self.views[d])) for d in (P, Q))
         return Light(u, v, float(r), float(s), radius, view)
 
-    def _area_pattern(self, light: Light) -> tuple[xr.DataArray, dict] | None:
-        """A near-light store's disk light: each cell's share of the disk (summing to 1) over
-        the cells it covers, and their index ranges; None when it covers less than a cell."""
-        ltm = self.ds[LTM]
-        rc, sc = ltm["r"].values, ltm["s"].values
-        dr, ds_ = (abs(rc[1] - rc[0]) if len(rc) > 1 else 1.0,
-                   abs(sc[1] - sc[0]) if len(sc) > 1 else 1.0)
-        if light.radius < min(dr, ds_):
-            return None
-        k = AREA_SUBSAMPLES
-        offsets = (np.arange(k) + 0.5) / k - 0.5
-        sub_r = (rc[:, None] + offsets[None] * dr).ravel()
-        sub_s = (sc[:, None] + offsets[None] * ds_).ravel()
-        inside = (np.subtract.outer(sub_r, light.r) ** 2)[:, None] + \
-            (np.subtract.outer(sub_s, light.s) ** 2)[None, :] <= light.radius ** 2
-        cover = inside.reshape(len(rc), k, len(sc), k).sum(axis=(1, 3)).astype(float)
-        if cover.sum() == 0:
-            return None
-        rows, cols = np.flatnonzero(cover.any(axis=1)), np.flatnonzero(cover.any(axis=0))
-        cells = {"r": slice(rows[0], rows[-1] + 1), "s": slice(cols[0], cols[-1] + 1)}
-        pattern = cover[cells["r"], cells["s"]] / cover.sum()
-        return xr.DataArray(pattern, dims=("r", "s")), cells
-
     def _far_area(self, light: Light) -> np.ndarray:
         """A far-light store's area light: directions ``(lx, ly)`` over a disk, inside the unit
         disk."""
@@ -180,12 +158,9 @@ class Viewer:
             if self.far and light.radius > 0:
                 image = relight(self.ds, self._far_area(light)).mean("light")
             else:
-                area = None if self.far else self._area_pattern(light)
-                if area is None:
-                    image = relight(self.ds, [(light.r, light.s)], view=light.view).sum("light")
-                else:
-                    pattern, cells = area
-                    image = relight(self.ds.isel(cells), pattern, view=light.view).sum("light")
+                lights = ([(light.r, light.s)] if self.far or light.radius == 0 else
+                          disk_light(self.ds[LTM], (light.r, light.s), light.radius))
+                image = relight(self.ds, lights, view=light.view).sum("light")
             values = image.values
         return values, sorted({str(w.message) for w in caught})
 
@@ -225,77 +200,6 @@ class Viewer:
                 "acquisition", {}).get("plane", {}).get("unit", "m"),
             "views": self.views, "expected_error": EXPECTED_ERROR in self.ds,
         }
-
-
-def wide_chunks(ds: xr.Dataset, path: str | os.PathLike) -> xr.Dataset:
-    """``ds`` with its LTMs in Dask chunks of whole images by the stored inner chunks of the
-    lattice: one light reads the same Zarr chunks as before in one task per lattice block
-    instead of one per pixel tile (a 400 x 400 px, 50 x 50 store: 188 tasks, not 31,604)."""
-    names = [n for n in (LTM, *CHROMA_LTM.values()) if n in ds]
-    inner = dict(zip(ds[LTM].dims, ds[LTM].encoding.get("chunks", ds[LTM].shape), strict=True))
-    keep = set(names) | set(ds.coords)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the chunks of other variables are not used
-        wide = xr.open_zarr(path, consolidated=False, chunks={**inner, "y": -1, "x": -1},
-                            drop_variables=[n for n in ds.variables if n not in keep])
-    return ds.assign({n: cached(wide[n]) for n in names})
-
-
-class BlockCache:
-    """A Dask-chunked variable read whole block by block and kept in memory, least recently
-    used out past ``budget`` bytes: a pointer moving within a lattice block reads nothing.
-
-    An array-like for :func:`dask.array.from_array` (indexing within one block).
-    """
-
-    def __init__(self, var: xr.DataArray, budget: int) -> None:
-        self.var, self.budget = var, budget
-        self.shape, self.dtype, self.ndim = var.shape, var.dtype, var.ndim
-        self.starts = [np.cumsum((0, *c)) for c in var.data.chunks]
-        self.blocks: OrderedDict[tuple, np.ndarray] = OrderedDict()
-        self.lock = threading.Lock()
-
-    def _block(self, index: tuple[int, ...]) -> np.ndarray:
-        with self.lock:
-            if index in self.blocks:
-                self.blocks.move_to_end(index)
-                return self.blocks[index]
-        block = np.asarray(self.var.data.blocks[index].compute(scheduler="synchronous"))
-        with self.lock:
-            self.blocks[index] = block
-            while sum(b.nbytes for b in self.blocks.values()) > self.budget and \
-                    len(self.blocks) > 1:
-                self.blocks.popitem(last=False)
-        return block
-
-    def __getitem__(self, key) -> np.ndarray:
-        key = key if isinstance(key, tuple) else (key,)
-        key = key + (slice(None),) * (self.ndim - len(key))
-        index, local = [], []
-        for k, starts in zip(key, self.starts, strict=True):
-            if isinstance(k, slice) and k.step in (None, 1):
-                lo = starts[0] if k.start is None else k.start
-                hi = starts[-1] if k.stop is None else k.stop
-            elif isinstance(k, int | np.integer):
-                lo = hi = int(k)
-            else:
-                return np.asarray(self.var.data[key].compute(scheduler="synchronous"))
-            i = int(np.searchsorted(starts, lo, side="right") - 1)
-            if not starts[i] <= hi <= starts[i + 1]:
-                return np.asarray(self.var.data[key].compute(scheduler="synchronous"))
-            index.append(i)
-            local.append(lo - starts[i] if isinstance(k, int | np.integer) else
-                         slice(lo - starts[i], hi - starts[i]))
-        return self._block(tuple(index))[tuple(local)]
-
-
-def cached(var: xr.DataArray, budget: int = CACHE_BYTES) -> xr.DataArray:
-    """``var`` (Dask-backed) with its blocks read through a :class:`BlockCache`."""
-    import dask.array as da
-
-    data = da.from_array(BlockCache(var, budget), chunks=var.data.chunks, asarray=False,
-                         fancy=False, name=f"ltm-view-{var.name}-{id(var)}")
-    return var.copy(data=data)
 
 
 def in_memory(ds: xr.Dataset, limit: int = CACHED_BYTES) -> xr.Dataset:
