@@ -197,3 +197,29 @@ def test_view_has_help(capsys):
         build_parser().parse_args(["view", "--help"])
     out = capsys.readouterr().out
     assert exc.value.code == 0 and "usage: ltm view" in out and "--port" in out
+
+
+def test_an_area_light_is_a_relit_disk_light_and_an_old_store_is_named(small_store, tmp_path):
+    """The server's area light is :func:`disk_light` relit; a store without the light-major
+    copy (written before it) is served with one warning that names the fix."""
+    import shutil
+
+    import zarr
+
+    from ltmstore.core.errors import LtmWarning
+    from ltmstore.share.view import Viewer
+    from ltmstore.stages.by_light import by_light_name
+    from ltmstore.stages.relight import disk_light
+
+    old = shutil.copytree(small_store, tmp_path / "old.zarr")
+    group = zarr.open_group(str(old), mode="r+")
+    for name in [n for n in group if n.endswith("_by_light")]:
+        del group[name]
+    with pytest.warns(LtmWarning, match="ltm compact"):
+        viewer = Viewer(old)
+    assert by_light_name("ltm") not in viewer.ds
+    light = viewer.light_at(0.2, -0.3, radius=0.3)
+    image, _ = viewer.render_linear(light)
+    ds = open_store(small_store)
+    expected = relight(ds, disk_light(ds["ltm"], (light.r, light.s), light.radius)).sum("light")
+    np.testing.assert_allclose(image, expected.values, rtol=1e-5, atol=1e-7)
