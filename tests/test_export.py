@@ -157,12 +157,14 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 # --- the round trips ------------------------------------------------------------------------
 
 CASES = {  # name: (export arguments, output name, reader, lowest PSNRs: against relight, encoding)
-    "ptm-rgb": ({"fmt": "ptm"}, "out.ptm", read_ptm, (33.0, 53.0)),
-    "ptm-lrgb": ({"fmt": "ptm", "color": "lrgb"}, "out.ptm", read_ptm, (33.0, None)),
-    "hsh-2": ({"fmt": "hsh", "order": 2}, "out.rti", read_rti, (35.7, 51.0)),
-    "hsh-3": ({"fmt": "hsh", "order": 3}, "out.rti", read_rti, (38.4, 51.5)),
-    "relight-ptm": ({"fmt": "relight"}, "web", read_web, (32.0, 39.3)),
-    "relight-hsh": ({"fmt": "relight", "basis": "hsh"}, "web", read_web, (31.8, 34.1)),
+    # measured on the session's small store: 33.76 / 54.05, 33.73, 36.94 / 53.50, 40.73 / 55.01,
+    # 32.58 / 39.86, 33.92 / 37.12 dB
+    "ptm-rgb": ({"fmt": "ptm"}, "out.ptm", read_ptm, (33.3, 53.5)),
+    "ptm-lrgb": ({"fmt": "ptm", "color": "lrgb"}, "out.ptm", read_ptm, (33.3, None)),
+    "hsh-2": ({"fmt": "hsh", "order": 2}, "out.rti", read_rti, (36.5, 53.0)),
+    "hsh-3": ({"fmt": "hsh", "order": 3}, "out.rti", read_rti, (40.3, 54.5)),
+    "relight-ptm": ({"fmt": "relight"}, "web", read_web, (32.1, 39.4)),
+    "relight-hsh": ({"fmt": "relight", "basis": "hsh"}, "web", read_web, (33.5, 36.6)),
 }
 
 
