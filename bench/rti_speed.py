@@ -53,6 +53,9 @@ PEER_SCENE = "synthrti/multi-obj1-material1"
 PEER_SIZE = (0.22e6, 47)  # pixels, lights: the capture relight-cli fits in 0.4-0.8 s
 TARGET_BOTH_S, TARGET_FIT_S = 5.0, 1.0
 
+# relight-cli refuses ptm and hsh without the number of planes their colour fits take (RGB)
+RELIGHT_PLANES = {"ptm": ("-p", "18"), "hsh": ("-p", "27")}
+
 
 def ltm_command() -> list[str]:
     """The ``ltm`` console script beside this Python, or the same entry point through it."""
@@ -100,6 +103,7 @@ def speed(lp: Path, tmp: Path, repeats: int, relight_cli: str | None,
     ltm = ltm_command()
     store = tmp / "speed.zarr"
     rows: dict[str, list[float]] = {}
+    refused: dict[str, str] = {}  # relight-cli basis: its last output line
 
     def add(key: str, value: float) -> None:
         rows.setdefault(key, []).append(value)
@@ -125,12 +129,18 @@ def speed(lp: Path, tmp: Path, repeats: int, relight_cli: str | None,
         for basis in bases if relight_cli else ():
             out = tmp / f"relight-{basis}"
             shutil.rmtree(out, ignore_errors=True)
-            add(f"relight_cli_{basis}_s", run([relight_cli, "-b", basis, str(lp.parent),
-                                                str(out)])[0])
+            try:
+                add(f"relight_cli_{basis}_s", run([relight_cli, "-b", basis,
+                                                   *RELIGHT_PLANES.get(basis, ()),
+                                                   str(lp.parent), str(out)])[0])
+            except subprocess.CalledProcessError as exc:  # e.g. images in a subfolder
+                refused[basis] = (exc.stdout + exc.stderr).decode(errors="replace").strip()
+                refused[basis] = refused[basis].splitlines()[-1] if refused[basis] else ""
     names, _ = read_lp(lp)
     height, width = open_group(store)["frames"].shape[1:]
     result = {key: statistics.median(values) for key, values in rows.items()}
-    return {**result, "repeats": repeats, "lights": len(names), "pixels": int(height * width),
+    return {**result, "relight_cli_refused": refused, "repeats": repeats, "lights": len(names),
+            "pixels": int(height * width),
             "load_before": load_before, "load_after": load()}
 
 
