@@ -73,3 +73,22 @@ def test_reconstruct_after_compact_is_a_one_line_error(store_copy, capsys):
     assert main(["reconstruct", str(store_copy), "--overwrite"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "ltm compact" in err and "ingest" in err
+
+
+def test_a_store_without_the_light_major_copy_relights_the_same_and_compact_adds_it(
+        small_store, tmp_path, client):
+    """``reconstruct(light_major=False)`` (``--no-light-major``) writes no copy; relight reads
+    ``ltm`` itself with the same result; ``ltm compact`` adds the copy later."""
+    from archive_helpers import ingest_only
+
+    from ltmstore.stages.compact import compact
+    from ltmstore.stages.reconstruct import reconstruct
+
+    store = ingest_only(small_store, tmp_path / "store.zarr")
+    reconstruct(store, client=client, lattice=(16, 16), light_major=False, progress=False)
+    assert "ltm_by_light" not in open_store(store)
+    expected = relight(small_store, LIGHTS).values
+    np.testing.assert_array_equal(relight(store, LIGHTS).values, expected)
+    compact(store, keep_frames=True)
+    assert "ltm_by_light" in open_store(store)
+    np.testing.assert_array_equal(relight(store, LIGHTS).values, expected)

@@ -90,6 +90,9 @@ def register(sub) -> None:
     p.add_argument("--tile", type=int, default=None,
                    help="pixel tile side (default: 32; 64 for a far-light store)")
     p.add_argument("--overwrite", action="store_true", help="recompute an existing ltm")
+    p.add_argument("--no-light-major", action="store_true",
+                   help="skip the light-major copy of the LTM: half the LTM bytes, but each "
+                   "relit light reads every pixel tile (`ltm compact` adds the copy later)")
     p.set_defaults(func=cmd_reconstruct)
 
     p = sub.add_parser("relight", help="render the store under new point lights",
@@ -214,7 +217,8 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
     info = reconstruct(a.store, scheduler=a.scheduler, lattice=lattice, delta_rs=a.delta_rs,
                        method=a.method, auto=not a.no_auto, tile=a.tile,
                        color={"auto": None, "on": True, "off": False}[a.color],
-                       overwrite=a.overwrite, force=a.force)
+                       overwrite=a.overwrite, force=a.force,
+                       light_major=not a.no_light_major)
     density = info["path_density"]
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
           + ("" if density is None else f"path density {density:.1f}/unit  ")

@@ -137,7 +137,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                 lattice: tuple[int, int] | None = None, delta_rs: float | None = None,
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
                 color: bool | None = None, tile: int | None = None, overwrite: bool = False,
-                resume: bool = True, force: bool = False, progress: bool = True) -> dict:
+                resume: bool = True, force: bool = False, light_major: bool = True,
+                progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store.
 
     A store without a complete ``ltm`` is written in place (an interrupted run of the same
@@ -182,6 +183,10 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         Run a ``lattice`` or ``delta_rs`` whose sampling ratio ``K/M`` is below
         :data:`MIN_RATIO` (refused otherwise, naming the lattice that reaches
         :data:`TARGET_RATIO`).
+    light_major : bool
+        Also write the light-major copy of each LTM (:mod:`ltmstore.stages.by_light`): as many
+        bytes again, and what makes relighting interactive (a point light reads 4 cells' image
+        planes); ``ltm compact`` can add it later. A far-light store has none.
 
     Returns
     -------
@@ -223,7 +228,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
                        "ingest it again with this version")
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
-               auto=auto, color=color, tile=tile, progress=progress, resume=resume, force=force)
+               auto=auto, color=color, tile=tile, progress=progress, resume=resume, force=force,
+               light_major=light_major)
     try:
         with st.writing(path):
             if not revise:
@@ -308,7 +314,7 @@ def tiles_name(variable: str) -> str:
 
 def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
                  params: dict, auto: bool, color: bool, tile: int, progress: bool,
-                 resume: bool, force: bool) -> dict:
+                 resume: bool, force: bool, light_major: bool) -> dict:
     import dask.array as da
 
     plane = Plane.from_json(group.attrs["acquisition"]["plane"])
@@ -338,7 +344,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
                 "path_density": path_length(r, s, valid=valid) / plane.area}
     solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height), plan=plan,
                       sampling=sampling, key=key, method=method, params=params, auto=auto,
-                      color=color, progress=progress)
+                      color=color, progress=progress, light_major=light_major)
     if resume and _resumable(group, key, plan, [*sample_names, *ltm_names, EXPECTED_ERROR,
                                                 UNSUPPORTED], ltm_names):
         return _solve_stage(group, client, **solve_args, timings={"resample_s": 0.0}, resumed=True)
@@ -372,7 +378,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
 
 def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan: TilePlan,
                  sampling: dict, key: dict, method: str, params: dict, auto: bool, color: bool,
-                 progress: bool, timings: dict, resumed: bool) -> dict:
+                 progress: bool, timings: dict, resumed: bool, light_major: bool) -> dict:
     """Solve every tile not yet marked done (all of them in a fresh run); complete the stage."""
     start = time.perf_counter()
     out = {LTM: group[LTM], EXPECTED_ERROR: group[EXPECTED_ERROR],
@@ -396,7 +402,7 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
         check_solved(group, name, plan, client)
     start = time.perf_counter()
-    for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
+    for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)] if light_major else ():
         write_by_light(group, name)  # the light-major copy that relight reads
     timings["by_light_s"] = time.perf_counter() - start
     for name in [LTM, *CHROMA_LTM.values()]:
