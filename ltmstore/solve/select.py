@@ -102,12 +102,12 @@ def choose_method(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> 
         return MethodChoice(label=label, method=method, params=dict(params), errors={})
     rng = np.random.default_rng(seed)
     rows = rng.choice(len(samples), size=min(PIXELS, len(samples)), replace=False)
-    held = {label: heldout_error(samples[rows], geometry, method, folds=FOLDS, seed=seed,
-                                 params=params)
+    picked = samples[rows]
+    held = {label: heldout_error(picked, geometry, method, folds=FOLDS, seed=seed,
+                                 params=params, keep_prediction=label in ("cs", "rbf"))
             for label, method, params in AUTO_METHODS}
     errors = {label: h.relative_error for label, h in held.items()}
-    weight, errors[BLEND] = _best_blend(held["cs"], held["rbf"],
-                                        samples[rows].reshape(len(rows), -1))
+    weight, errors[BLEND] = _best_blend(held["cs"], held["rbf"], picked.reshape(len(rows), -1))
     candidates = [*AUTO_METHODS, (BLEND, "blend", {"weight": weight})]
     best = min((e for e in errors.values() if np.isfinite(e)), default=np.inf)
     label, method, params = next(entry for entry in candidates

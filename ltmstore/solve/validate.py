@@ -48,8 +48,9 @@ class HeldOut:
         Mean number of held-out cells per pixel in each fold (whole numbers for a shared mask).
     shared_mask : bool
         Whether all pixels had the same mask (and so held out the same cells).
-    prediction : ndarray, shape (n, cells)
-        The method's prediction at each held-out cell (NaN at cells never held out).
+    prediction : ndarray, shape (n, cells), or None
+        The method's prediction at each held-out cell (NaN at cells never held out); kept only
+        when asked for (``keep_prediction``).
     """
 
     rms: np.ndarray
@@ -59,7 +60,7 @@ class HeldOut:
     folds: int
     cells_per_fold: tuple[float, ...]
     shared_mask: bool
-    prediction: np.ndarray
+    prediction: np.ndarray | None = None
 
 
 def check_split(folds: int, fraction: float | None, block: int) -> float:
@@ -132,7 +133,8 @@ def as_method(method: str | Method) -> Method:
 
 def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method, *,
                   folds: int = 5, seed: int = 0, params: dict | None = None,
-                  fraction: float | None = None, block: int = 1) -> HeldOut:
+                  fraction: float | None = None, block: int = 1,
+                  keep_prediction: bool = False) -> HeldOut:
     """Cross-validated error of ``method`` on a batch of binned LTFs (no ground truth needed).
 
     Parameters
@@ -150,6 +152,8 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         Keyword arguments of the method.
     fraction, block
         See :func:`split_folds`.
+    keep_prediction : bool
+        Keep the prediction at every held-out cell (``HeldOut.prediction``).
 
     Returns
     -------
@@ -163,7 +167,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
     mask = np.isfinite(samples)
     fold = split_folds(mask, folds, fraction=fraction, block=block, seed=seed)
     sq, count = np.zeros(n), np.zeros(n, dtype=np.int64)
-    prediction = np.full((n, mask[0].size), np.nan)
+    prediction = np.full((n, mask[0].size), np.nan) if keep_prediction else None
     ref = res = 0.0
     per_fold = []
     for f in range(folds):
@@ -176,7 +180,8 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         pred = np.asarray(solve(train, geometry, **params), dtype=np.float64).reshape(len(rows), -1)
         truth = samples[rows].reshape(len(rows), -1).astype(np.float64)
         err = np.where(hidden[rows], pred - truth, 0.0)
-        prediction[rows] = np.where(hidden[rows], pred, prediction[rows])
+        if keep_prediction:
+            prediction[rows] = np.where(hidden[rows], pred, prediction[rows])
         sq[rows] += (err**2).sum(axis=1)
         count[rows] += hidden[rows].sum(axis=1)
         ref += float((np.where(hidden[rows], truth, 0.0) ** 2).sum())
