@@ -82,6 +82,14 @@ def beyond_loopback(listeners: dict[tuple[str, int], str]) -> dict[tuple[str, in
     return {addr: cmd for addr, cmd in listeners.items() if addr[0] not in ("127.0.0.1", "::1")}
 
 
+def only_error_line(proc: subprocess.CompletedProcess, *words: str) -> None:
+    """Exit status 2 and stderr exactly one ``ltm: error:`` line holding every word."""
+    lines = proc.stderr.splitlines()
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert len(lines) == 1 and lines[0].startswith("ltm: error: "), proc.stderr
+    assert all(w in lines[0] for w in words), proc.stderr
+
+
 def ltm_here(capsys, *args) -> subprocess.CompletedProcess:
     """Run ``ltm`` in this process (quicker than :func:`run_ltm` where no separate process is
     under test); returns the same kind of result."""

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from ingest_helpers import make_acquisition, tree_hashes
-from pipeline_helpers import BIN, ltm_here, run_ltm
+from pipeline_helpers import BIN, ltm_here, only_error_line, run_ltm
 
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_group, stages
@@ -32,13 +32,6 @@ def store(acq, tmp_path) -> Path:
     out = tmp_path / "store.zarr"
     ingest(acq, out, progress=False)
     return out
-
-
-def one_line_error(proc: subprocess.CompletedProcess, match: str) -> None:
-    assert proc.returncode == 2, proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("ltm: error: "), proc.stderr
-    assert match in lines[0], lines[0]
 
 
 def start_ltm(*args, pause: float = 60) -> subprocess.Popen:
@@ -63,9 +56,9 @@ def in_swap(path: Path):
 
 def test_overwrite_never_replaces_an_input(acq, capsys):
     before = tree_hashes(acq.parent)
-    one_line_error(run_ltm("ingest", acq, acq, "--overwrite"), "input")
+    only_error_line(run_ltm("ingest", acq, acq, "--overwrite"), "input")
     for path in (acq.parent, acq / "video.mkv"):
-        one_line_error(ltm_here(capsys, "ingest", acq, path, "--overwrite"), "input")
+        only_error_line(ltm_here(capsys, "ingest", acq, path, "--overwrite"), "input")
     assert tree_hashes(acq.parent) == before
 
 
@@ -73,7 +66,7 @@ def test_overwrite_replaces_only_a_store(acq, tmp_path, capsys):
     folder = tmp_path / "photos"
     folder.mkdir()
     (folder / "a.jpg").write_bytes(b"precious")
-    one_line_error(ltm_here(capsys, "ingest", acq, folder, "--overwrite"),
+    only_error_line(ltm_here(capsys, "ingest", acq, folder, "--overwrite"),
                    "not a store made by ltm")
     assert (folder / "a.jpg").read_bytes() == b"precious"
 
@@ -83,7 +76,7 @@ def test_a_second_writer_is_refused_in_one_line(acq, store):
     try:
         wait_for(in_swap(store), first)
         second = run_ltm("ingest", acq, store, "--overwrite")
-        one_line_error(second, f"is being written by process {first.pid} on host")
+        only_error_line(second, f"is being written by process {first.pid} on host")
     finally:
         first.kill()
         first.wait()
@@ -107,7 +100,7 @@ def held_in_another_process(lock: str, path: Path):
 
 def test_a_second_reconstruct_is_refused_in_one_line(store):
     with held_in_another_process("ltmstore.core.lock:locked", store) as pid:
-        one_line_error(run_ltm("reconstruct", store, "--lattice", "8x8"),
+        only_error_line(run_ltm("reconstruct", store, "--lattice", "8x8"),
                        f"is being written by process {pid} on host")
     assert "reconstruct" not in stages(open_group(store))
 

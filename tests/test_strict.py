@@ -17,6 +17,7 @@ from pipeline_helpers import (
     beyond_loopback,
     dask_processes,
     free_port,
+    only_error_line,
     run_ltm,
     tcp_listeners,
 )
@@ -25,14 +26,6 @@ from ltmstore.core.cluster import dask_client
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
 from ltmstore.synthetic.writer import write_acquisition_json, write_video
-
-
-def only_error_line(proc: subprocess.CompletedProcess, *words: str) -> None:
-    """Exit status 2 and stderr exactly one ``ltm: error:`` line holding every word."""
-    lines = proc.stderr.splitlines()
-    assert proc.returncode == 2, (proc.returncode, proc.stderr)
-    assert len(lines) == 1 and lines[0].startswith("ltm: error: "), proc.stderr
-    assert all(w in lines[0] for w in words), proc.stderr
 
 
 @pytest.fixture
