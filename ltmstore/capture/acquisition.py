@@ -273,7 +273,7 @@ def _is_range(value: object) -> bool:
 
 
 def _time_offset(value: object, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    if not _is_number(value) or not math.isfinite(value):
         raise LtmError(f"{where}: time_offset {value!r} must be a finite number of seconds")
     return float(value)
 

@@ -34,7 +34,9 @@ def cmd_check(a: argparse.Namespace) -> None:
 
 def damaged_read(store: str | None, exc: ValueError) -> str | None:
     """The one-line error for a read that failed its checksum, or None for another error."""
-    if "checksum" not in str(exc):
+    from ltmstore.core.checksum import is_checksum_error
+
+    if not is_checksum_error(exc):
         return None
     return (f"store {store!r} is damaged: a chunk fails its checksum; run ltm check {store!r} "
             "to name the damaged parts")

@@ -137,6 +137,11 @@ def verify(root: Path, *, complete: Callable[[str], bool],
     return damage, unchecked
 
 
+def is_checksum_error(exc: Exception) -> bool:
+    """Whether ``exc`` is Zarr's report of a chunk that fails its crc32c."""
+    return "checksum" in str(exc)
+
+
 def _reason(exc: Exception) -> str:
     text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    return "checksum mismatch" if "checksum" in text else text[:120]
+    return "checksum mismatch" if is_checksum_error(exc) else text[:120]
