@@ -19,6 +19,7 @@ import xarray as xr
 from ltmstore.core.dims import LTM, X, Y
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
+from ltmstore.stages.relight import linear_position
 
 MEAN_ABS_ERROR, VAR_ABS_ERROR = "mean_abs_error", "var_abs_error"
 
@@ -166,17 +167,13 @@ def _same_cells(a: xr.DataArray, b: xr.DataArray, dim: str) -> bool:
 
 def interpolation_weights(centres: np.ndarray, points: np.ndarray) -> np.ndarray:
     """``(len(points), len(centres))`` weights of linear interpolation between cell centres,
-    clamped at the first and last centre (as :mod:`ltmstore.stages.relight` places a light)."""
-    n = len(centres)
-    weights = np.zeros((len(points), n))
-    if n == 1:
-        weights[:, 0] = 1.0
-        return weights
-    pos = np.interp(points, centres, np.arange(n))
-    i0 = np.minimum(np.floor(pos).astype(int), n - 2)
-    rows = np.arange(len(points))
-    weights[rows, i0] = 1 - (pos - i0)
-    weights[rows, i0 + 1] = pos - i0
+    clamped at the first and last centre (:func:`ltmstore.stages.relight.linear_position`, as
+    relight places a light)."""
+    weights = np.zeros((len(points), len(centres)))
+    for k, point in enumerate(points):
+        i0, i1, w = linear_position(centres, point)
+        weights[k, i0] += 1 - w
+        weights[k, i1] += w
     return weights
 
 

@@ -78,8 +78,9 @@ class LightExtrapolationWarning(LtmWarning):
     """A requested light lies far from every observation: its image is an extrapolation."""
 
 
-def _bilinear(centres: np.ndarray, value: float) -> tuple[int, int, float]:
-    """Indices ``i0, i1`` and weight of ``i1`` for linear interpolation between centres."""
+def linear_position(centres: np.ndarray, value: float) -> tuple[int, int, float]:
+    """Indices ``i0, i1`` and weight of ``i1`` for linear interpolation between evenly spaced
+    cell centres, clamped at the first and last centre."""
     n = len(centres)
     if n == 1:
         return 0, 0, 0.0
@@ -94,8 +95,8 @@ def _cell_weights(a: tuple[str, np.ndarray, float],
     """Bilinear weights over two lattice axes, each ``(dim, centres, value)``:
     ``[({dim_a: i, dim_b: j}, w)]`` with zero weights left out."""
     (dim_a, ca, va), (dim_b, cb, vb) = a, b
-    i0, i1, wa = _bilinear(ca, va)
-    j0, j1, wb = _bilinear(cb, vb)
+    i0, i1, wa = linear_position(ca, va)
+    j0, j1, wb = linear_position(cb, vb)
     cells = [((i0, j0), (1 - wa) * (1 - wb)), ((i1, j0), wa * (1 - wb)),
              ((i0, j1), (1 - wa) * wb), ((i1, j1), wa * wb)]
     return ([({dim_a: i, dim_b: j}, w) for (i, j), w in cells if w > 0]
