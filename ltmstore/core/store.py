@@ -137,15 +137,12 @@ def _recover_unlocked(path: Path) -> None:
             pass
 
 
-def remove_leftovers(path: Path) -> list[Path]:
+def remove_leftovers(path: Path) -> None:
     """Remove the partial stores and set-aside old stores that killed processes left beside
     ``path``. The caller holds the store's lock, so no live process is writing them."""
-    removed = []
     for pattern in (f".{path.name}.partial-*", f".{path.name}.old-*"):
         for leftover in path.parent.glob(pattern):
             shutil.rmtree(leftover, ignore_errors=True)
-            removed.append(leftover)
-    return removed
 
 
 def revision_path(path: str | os.PathLike) -> Path:

@@ -399,10 +399,11 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
-    for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]:
+    names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]
+    for name in names:
         check_solved(group, name, plan, client)
     start = time.perf_counter()
-    for name in [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)] if light_major else ():
+    for name in names if light_major else ():
         write_by_light(group, name)  # the light-major copy that relight reads
     timings["by_light_s"] = time.perf_counter() - start
     for name in [LTM, *CHROMA_LTM.values()]:
