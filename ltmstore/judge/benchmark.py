@@ -87,21 +87,29 @@ def make_cases(scene: str, path_density: float, lattices, *, size: int, seed: in
         cases.append(Case(scene=scene, path_density=path_density,
                           samples=np.asarray(binned.compute()).reshape(-1, n, n),
                           truth=(truth * exposure).reshape(-1, n, n),
-                          geometry=Geometry(lattice=lattice, height=plan.plane.height)))
+                          geometry=Geometry(lattice=lattice, height=plan.plane.height,
+                                            pixels=_pixels(plan.scene))))
     return cases
+
+
+def _pixels(scene) -> np.ndarray:
+    """Object-plane ``(X, Y)`` of every pixel of ``scene``, ``(n, 2)`` in C order of ``(y, x)``."""
+    x, y = scene.pixel_centres()
+    return np.column_stack([x.ravel(), y.ravel()])
 
 
 def measure(case: Case, method: str, params: dict, rows: np.ndarray, *, repeats: int) -> dict:
     """SNR_Y, median time per pixel and peak memory of one method on one case."""
-    batch = case.samples[rows]
+    batch, geometry = case.samples[rows], case.geometry.take(rows)
     solve = partial(_auto, method=method) if params.get("auto") else get_method(method)
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
-        estimate = solve(batch, case.geometry, **params)
+        estimate = solve(batch, geometry, **params)
         times.append(time.perf_counter() - start)
     tracemalloc.start()  # a separate run: tracing slows allocation-heavy code
-    solve(batch[: max(1, len(batch) // 4)], case.geometry, **params)
+    quarter = np.arange(max(1, len(batch) // 4))
+    solve(batch[quarter], geometry.take(quarter), **params)
     peak = tracemalloc.get_traced_memory()[1] * len(batch) / max(1, len(batch) // 4)
     tracemalloc.stop()
     return {"scene": case.scene, "path_density": case.path_density,

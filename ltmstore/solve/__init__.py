@@ -3,7 +3,9 @@
 Every method is ``solve(samples, geometry, **params) -> ndarray``: ``samples`` is a batch of
 binned LTFs of shape ``(n, *lattice)`` (one row per pixel of a tile) with NaN where a cell was not
 observed, ``geometry`` a :class:`Geometry` (the lattice and the plane height, for methods that
-need cell positions or light directions); the result is float32 of the same shape.
+need cell positions or light directions, and where the acquisition declares the object's
+extent, each row's position on the object plane, for methods that model the near light per
+pixel); the result is float32 of the same shape.
 
 Beside the methods: ``validate`` (held-out error on the cells, which methods use to choose their
 parameters), ``select`` (that choice per tile) and ``confidence`` (coverage and expected error
@@ -14,7 +16,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,7 +24,7 @@ from ltmstore.core.dims import Lattice
 from ltmstore.core.errors import LtmError
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Geometry:
     """Where the lattice cells are: what position- or direction-based methods need.
 
@@ -32,10 +34,23 @@ class Geometry:
         The lattice the samples live on.
     height : float
         Height of the illumination plane above the object (plane units).
+    pixels : ndarray of shape (n, 2), optional
+        Object-plane position ``(X, Y)`` of the pixel of each row of the batch (plane units,
+        the axes of ``r, s``); ``None`` where the acquisition does not declare the object's
+        extent. A method that slices rows of a batch slices these with :meth:`take`.
     """
 
     lattice: Lattice
     height: float = 1.0
+    pixels: np.ndarray | None = None
+
+    def take(self, rows: np.ndarray) -> Geometry:
+        """The geometry of the batch rows ``rows`` (the same lattice; their pixel positions)."""
+        return self if self.pixels is None else replace(self, pixels=self.pixels[rows])
+
+    def with_pixels(self, pixels: np.ndarray | None) -> Geometry:
+        """The same lattice with the object-plane positions ``pixels (n, 2)`` of a batch."""
+        return replace(self, pixels=None if pixels is None else np.asarray(pixels, float))
 
     @classmethod
     def from_shape(cls, shape: tuple[int, ...], height: float = 1.0) -> Geometry:
@@ -90,7 +105,8 @@ class Registry(Mapping):
 # One line per method: its name and its module in ltmstore.solve (which defines ``solve``).
 METHODS: Mapping[str, Method] = Registry({
     "cs": "cs", "lars": "lars", "omp": "omp", "cubic": "cubic", "kernel": "kernel",
-    "svt": "svt", "ptm": "ptm", "hsh": "hsh", "rbf": "rbf", "blend": "blend"})
+    "svt": "svt", "ptm": "ptm", "hsh": "hsh", "rbf": "rbf", "blend": "blend",
+    "physical": "physical"})
 DEFAULT_METHOD = "auto"  # per tile, by held-out error (ltmstore.solve.select.choose_method)
 
 

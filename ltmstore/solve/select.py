@@ -31,7 +31,10 @@ AUTO = "auto"
 # (label, method, fixed parameters), smallest model first
 AUTO_METHODS = (("ptm", "ptm", {}), ("hsh2", "hsh", {"order": 2}), ("hsh3", "hsh", {"order": 3}),
                 ("cs", "cs", {}), ("rbf", "rbf", {}), ("cubic", "cubic", {}))
+# tried as well where the batch knows its pixels' positions on the object plane (near lights)
+AUTO_PHYSICAL = (("physical", "physical", {}),)
 BLEND = "cs+rbf"  # label of the blend of cs and rbf that auto may choose (ltmstore.solve.blend)
+AUTO_LABELS = (*(entry[0] for entry in AUTO_METHODS + AUTO_PHYSICAL), BLEND)  # method_map names
 BLEND_WEIGHTS = (0.25, 0.5, 0.75)  # weights of cs tried (0 and 1 are rbf and cs themselves)
 AUTO_METHODS_6D = (("cs", "cs", {}),)  # the one method measured on 6-D lattices (bench_6d.py)
 TIE = 0.01  # relative held-out error within which the smaller model wins
@@ -68,7 +71,7 @@ def choose_params(samples: np.ndarray, geometry: Geometry, method: str, *, param
     rows = rng.choice(len(samples), size=min(PIXELS, len(samples)), replace=False)
     errors = {}
     for value in candidates:
-        held = heldout_error(samples[rows], geometry, method, folds=FOLDS, seed=seed,
+        held = heldout_error(samples[rows], geometry.take(rows), method, folds=FOLDS, seed=seed,
                              params={**params, name: value})
         errors[value] = held.relative_error
     default = inspect.signature(get_method(method)).parameters[name].default
@@ -94,21 +97,24 @@ def choose_method(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> 
     """The entry of :data:`AUTO_METHODS` with the lowest held-out error on a few pixels of the
     batch (the same held-out cells for every candidate), or a blend of ``cs`` and ``rbf``
     (:data:`BLEND`) where a weight of :data:`BLEND_WEIGHTS` predicts those cells better still;
-    the smaller model wins a tie (the blend counts as the largest). A 6-D lattice keeps
-    :data:`AUTO_METHODS_6D`."""
+    the smaller model wins a tie (the blend counts as the largest). Where ``geometry`` carries
+    the pixels' positions, :data:`AUTO_PHYSICAL` (the physical reflectance model) is a candidate
+    too. A 6-D lattice keeps :data:`AUTO_METHODS_6D`."""
     entries = AUTO_METHODS if geometry.ndim == 2 else AUTO_METHODS_6D
+    if geometry.ndim == 2 and geometry.pixels is not None:
+        entries = AUTO_METHODS + AUTO_PHYSICAL
     if len(entries) == 1:
         (label, method, params), = entries
         return MethodChoice(label=label, method=method, params=dict(params), errors={})
     rng = np.random.default_rng(seed)
     rows = rng.choice(len(samples), size=min(PIXELS, len(samples)), replace=False)
     picked = samples[rows]
-    held = {label: heldout_error(picked, geometry, method, folds=FOLDS, seed=seed,
+    held = {label: heldout_error(picked, geometry.take(rows), method, folds=FOLDS, seed=seed,
                                  params=params, keep_prediction=label in ("cs", "rbf"))
-            for label, method, params in AUTO_METHODS}
+            for label, method, params in entries}
     errors = {label: h.relative_error for label, h in held.items()}
     weight, errors[BLEND] = _best_blend(held["cs"], held["rbf"], picked.reshape(len(rows), -1))
-    candidates = [*AUTO_METHODS, (BLEND, "blend", {"weight": weight})]
+    candidates = [*entries, (BLEND, "blend", {"weight": weight})]
     best = min((e for e in errors.values() if np.isfinite(e)), default=np.inf)
     label, method, params = next(entry for entry in candidates
                                  if not np.isfinite(best) or errors[entry[0]] <= best * (1 + TIE))

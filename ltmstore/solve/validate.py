@@ -177,7 +177,8 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         if rows.size == 0:
             continue
         train = np.where(hidden[rows].reshape(-1, *samples.shape[1:]), np.nan, samples[rows])
-        pred = np.asarray(solve(train, geometry, **params), dtype=np.float64).reshape(len(rows), -1)
+        pred = np.asarray(solve(train, geometry.take(rows), **params), dtype=np.float64)
+        pred = pred.reshape(len(rows), -1)
         truth = samples[rows].reshape(len(rows), -1).astype(np.float64)
         err = np.where(hidden[rows], pred - truth, 0.0)
         if keep_prediction:

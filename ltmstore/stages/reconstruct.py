@@ -37,7 +37,7 @@ from ltmstore.core.dims import (
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
-from ltmstore.solve.select import AUTO, AUTO_METHODS, BLEND, Choice, choose_method, choose_params
+from ltmstore.solve.select import AUTO, AUTO_LABELS, Choice, choose_method, choose_params
 from ltmstore.stages.by_light import write_by_light
 from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
 from ltmstore.stages.resample import (
@@ -446,7 +446,7 @@ def record_method_map(group: zarr.Group, records: list[dict], plan: TilePlan,
                       method: str) -> None:
     """``method_map (tile_y, tile_x)``: the method each tile used (index into attr
     ``methods``)."""
-    names = [*(label for label, _, _ in AUTO_METHODS), BLEND] if method == AUTO else [method]
+    names = list(AUTO_LABELS) if method == AUTO else [method]
     chosen = np.full(plan.grid, -1, dtype=np.int16)
     for rec in records:
         chosen[tuple(rec["tile"])] = names.index(rec.get("method", method))

@@ -114,7 +114,15 @@ class Regime:
 
     def subset(self, rows: np.ndarray) -> Regime:
         """The same regime restricted to some pixels (rows of the batch)."""
-        return replace(self, samples=self.samples[rows], truth=self.truth[rows])
+        return replace(self, samples=self.samples[rows], truth=self.truth[rows],
+                       geometry=self.geometry.take(rows))
+
+
+def scene_pixels(size: int) -> np.ndarray:
+    """Object-plane ``(X, Y)`` of the pixels of a built-in scene of ``size`` pixels a side,
+    ``(size * size, 2)`` in C order over ``(y, x)`` (what ``Geometry.pixels`` holds)."""
+    x, y = make_scene("canvas", size=size).pixel_centres()
+    return np.column_stack([x.ravel(), y.ravel()])
 
 
 def regime_lattice(shape: tuple[int, int] = (16, 16), plane: Plane = PLANE) -> Lattice:
@@ -158,7 +166,7 @@ def make_regime(name: str, spec: RegimeSpec, truth: np.ndarray, lattice: Lattice
     frames = _corrupt(frames, spec, float(truth.max()), rng)
     recorded = (r + rng.normal(0, spec.jitter, r.shape), s + rng.normal(0, spec.jitter, s.shape))
     samples = _bin(frames, bin_positions(lattice, recorded))
-    geometry = Geometry(lattice=lattice, height=plane.height)
+    geometry = Geometry(lattice=lattice, height=plane.height, pixels=scene_pixels(image[0]))
     return Regime(name=name, samples=samples.reshape(-1, *lattice.shape),
                   truth=truth.reshape(-1, *lattice.shape).astype(np.float32),
                   geometry=geometry, image=image)
@@ -222,7 +230,8 @@ def lossy_regime(folder: str | os.PathLike, *, size: int = 24, lattice: tuple[in
     truth = open_store(acq / "truth.zarr")["ltm"].values
     return Regime(name="lossy", samples=samples.reshape(-1, *grid.shape),
                   truth=truth.reshape(-1, *grid.shape).astype(np.float32),
-                  geometry=Geometry(lattice=grid, height=PLANE.height), image=truth.shape[:2])
+                  geometry=Geometry(lattice=grid, height=PLANE.height, pixels=scene_pixels(size)),
+                  image=truth.shape[:2])
 
 
 def observed_scale(samples: np.ndarray) -> np.ndarray:

@@ -1,0 +1,407 @@
+"""A physical reflectance model per pixel, plus the interpolated residual of what it misses.
+
+Every pixel is a surface point ``P = (X, Y, 0)`` (``geometry.pixels``) with a unit normal ``n``, a
+diffuse albedo ``rho``, a specular lobe of strength ``k`` and roughness ``alpha`` (GGX), and an
+ambient floor ``a``; the light of lattice cell ``c`` sits at ``L = (r, s, h)``. With ``l`` the
+unit vector towards the light, ``d = |L - P|`` and the half vector ``H`` of ``l`` and the view
+``v = (0, 0, 1)``::
+
+    t(c) = g(c) (rho max(n.l, 0) + k D_GGX(n.H; alpha) / (4 n.v)) + a,   g = (h / d)^m / d^2
+
+``g`` is the near light's inverse-square fall-off times the LED's ``cos^m`` emission about its
+axis (``led_exponent``, one value per capture). The five parameters of each pixel are fitted to
+its observed cells by batched Levenberg-Marquardt with an analytic Jacobian (every pixel of the
+tile at once), from a few starts (a flat normal; the normal that mirrors the brightest
+observation into the camera), keeping each pixel's best; a robust (Cauchy) reweighting keeps
+cast shadows and interreflections out of the fit.
+
+The model is what fills the holes: a handheld path leaves the same cells unobserved for every
+pixel, but a pixel's normal and albedo are seen in its diffuse shading everywhere, and the model
+puts its highlight where the geometry says it is. Two more things make it a prior rather than a
+straitjacket:
+
+* **Shared lobes.** A pixel whose highlight falls in a hole has no evidence of its lobe (the
+  share of the lobe's energy on observed cells is low); it takes the roughness and the
+  specular-to-diffuse ratio of the pixels of the tile that did see theirs (weighted towards its
+  own estimate by its evidence): one pixel's hole is filled by another's observations.
+* **Residual.** What the model misses at the observed cells (cast shadows, interreflections, a
+  lobe of another shape) is interpolated over the lattice (thin-plate RBF, one system for a
+  shared mask) and damped with the distance from the nearest observation, so that far from the
+  data the model speaks alone and at the data the result interpolates it.
+
+Where it fails: without ``geometry.pixels`` (an acquisition that does not declare the object's
+extent) the near light's direction is unknown: the method refuses. Anisotropic or layered
+materials, and strongly non-planar objects (the light is computed for ``z = 0``), leave more in
+the residual; ``--method auto`` then prefers another method by held-out error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ltmstore.core.errors import LtmError
+
+if TYPE_CHECKING:
+    from ltmstore.solve import Geometry
+
+ALPHA_RANGE = (0.02, 1.0)  # GGX roughness kept within these bounds
+SLOPE_MAX = 3.0  # |dh/dX|, |dh/dY| of a normal kept within this (72 degrees of tilt)
+START_ITER = 5  # Levenberg-Marquardt iterations from each start ...
+N_ITER = 10  # ... and from the better of them, per pixel
+ROBUST = 3.0  # Cauchy scale, in robust standard deviations of a pixel's residuals
+DAMP_CELLS = 2.0  # the residual's weight falls as exp(-(distance / DAMP_CELLS cells)^2)
+# --method auto chooses the residual's weight by held-out error (ltmstore.solve.select): on
+# noise-free data the residual adds 6 dB, on noisy data the model alone is better by up to 10 dB
+# (it does not interpolate the noise of the observed cells).
+AUTO_GRID = {"residual": (0.0, 0.5, 1.0)}
+SHARE_EVIDENCE = 0.5  # a pixel that saw less of its highlight's peak takes the tile's roughness
+
+
+@dataclass(frozen=True, eq=False)
+class Surface:
+    """Per-pixel parameters of the reflectance model, each ``(n,)`` (``normal``: ``(n, 3)``).
+
+    Attributes
+    ----------
+    normal : ndarray
+        Unit surface normal, object-plane axes (``z`` towards the camera).
+    albedo : ndarray
+        Diffuse albedo times the light's intensity (the sample's units at unit distance).
+    specular : ndarray
+        Strength of the GGX lobe, same units.
+    roughness : ndarray
+        GGX ``alpha``.
+    ambient : ndarray
+        Constant floor (ambient light), the sample's units.
+    evidence : ndarray
+        Share of the lobe's energy over the lattice that falls on observed cells.
+    """
+
+    normal: np.ndarray
+    albedo: np.ndarray
+    specular: np.ndarray
+    roughness: np.ndarray
+    ambient: np.ndarray
+    evidence: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Lights:
+    """Unit vectors towards the light ``toward (3, n, M)``, half vectors ``half (3, n, M)`` (of
+    those and the view ``(0, 0, 1)``) and the fall-off ``g (n, M)`` of every (pixel, cell);
+    components first, so that each is a contiguous ``(n, M)`` array."""
+
+    toward: np.ndarray
+    half: np.ndarray
+    g: np.ndarray
+
+    def take(self, cells: np.ndarray) -> Lights:
+        """The lights of the cells ``cells`` only."""
+        return Lights(self.toward[..., cells], self.half[..., cells], self.g[:, cells])
+
+    def rows(self, rows: np.ndarray) -> Lights:
+        """The lights as seen from the pixels ``rows`` only."""
+        return Lights(self.toward[:, rows], self.half[:, rows], self.g[rows])
+
+
+def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
+    """The light of every lattice cell as seen from every pixel of ``geometry.pixels``."""
+    if geometry.pixels is None:
+        raise LtmError("method 'physical' needs each pixel's position on the object plane: "
+                       "declare the object's extent in acquisition.json ('object')")
+    rs = geometry.positions()[:, :2]
+    vec = np.empty((3, len(geometry.pixels), len(rs)))
+    vec[:2] = rs.T[:, None, :] - geometry.pixels.T[:, :, None]
+    vec[2] = geometry.height
+    dist2 = (vec**2).sum(axis=0)
+    toward = vec / np.sqrt(dist2)
+    half = toward + np.array([0.0, 0.0, 1.0])[:, None, None]
+    half /= np.sqrt((half**2).sum(axis=0))
+    return Lights(toward, half, toward[2] ** led_exponent / dist2)
+
+
+def _normal(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Unit normals ``(n, 3)`` of the slopes ``(p, q)`` (``n ~ (-p, -q, 1)``)."""
+    return np.stack([-p, -q, np.ones_like(p)], axis=-1) / np.sqrt(1 + p * p + q * q)[:, None]
+
+
+def _dot(vectors: np.ndarray, p: np.ndarray, q: np.ndarray, norm: np.ndarray) -> np.ndarray:
+    """``n . x`` for ``n = (-p, -q, 1) / norm`` and the vectors ``x (3, n, K)``."""
+    return (vectors[2] - p * vectors[0] - q * vectors[1]) / norm
+
+
+def _model(theta: np.ndarray, lights: Lights, jacobian: bool = False):
+    """Model values ``(n, K)`` at parameters ``theta = (p, q, rho, k, log alpha, a)`` ``(n, 6)``,
+    and with ``jacobian`` their derivatives ``(n, 6, K)``."""
+    p, q, rho, k, log_alpha, floor = (c[:, None] for c in theta.T)
+    norm = np.sqrt(1 + p * p + q * q)
+    a2 = np.exp(2 * log_alpha)
+    ndotl = _dot(lights.toward, p, q, norm)
+    ndoth = np.clip(_dot(lights.half, p, q, norm), 0.0, 1.0)
+    lit = ndotl > 0
+    cos = np.where(lit, ndotl, 0.0)
+    inv_u = 1 / (ndoth * ndoth * (a2 - 1) + 1)
+    dist = a2 / np.pi * inv_u * inv_u  # GGX D(n.H)
+    lobe = dist * (norm / 4)  # D / (4 n.v), n.v = 1 / norm
+    g = lights.g
+    value = g * (rho * cos + k * lobe) + floor
+    if not jacobian:
+        return value
+    dd_dc = -4 * (a2 - 1) * ndoth * inv_u * dist
+    dd_dlog_alpha = 2 * dist * (1 - 2 * a2 * ndoth * ndoth * inv_u)
+    jac = np.empty((len(theta), 6, value.shape[1]))
+    for axis, slope in ((0, p), (1, q)):  # d(n.x)/dp = (-x_p - (n.x) p / norm) / norm
+        dcos = np.where(lit, (-lights.toward[axis] - ndotl * slope / norm) / norm, 0.0)
+        dc = (-lights.half[axis] - ndoth * slope / norm) / norm
+        dlobe = (dd_dc * dc * norm + dist * slope / norm) / 4
+        jac[:, axis] = g * (rho * dcos + k * dlobe)
+    jac[:, 2] = g * cos
+    jac[:, 3] = g * lobe
+    jac[:, 4] = g * k * dd_dlog_alpha * (norm / 4)
+    jac[:, 5] = 1.0
+    return value, jac
+
+
+def _normal_equations(jac: np.ndarray, w: np.ndarray,
+                      y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J^T W J (n, P, P)`` and ``J^T W y (n, P)`` of Jacobians ``(n, P, K)``, batched BLAS."""
+    weighted = jac * w[:, None, :]
+    return weighted @ jac.transpose(0, 2, 1), (weighted @ y[..., None])[..., 0]
+
+
+def _linear_terms(theta: np.ndarray, lights: Lights, y: np.ndarray,
+                  w: np.ndarray) -> np.ndarray:
+    """``theta`` with ``rho, k, a`` replaced by their weighted least-squares values for its
+    normal and roughness (non-negative; the variable-projection start of each fit)."""
+    basis = _model(theta, lights, jacobian=True)[1][:, [2, 3, 5]]  # linear in rho, k, a
+    ata, atb = _normal_equations(basis, w, y)
+    coef = np.maximum(np.linalg.solve(ata + 1e-12 * np.eye(3), atb[..., None])[..., 0], 0.0)
+    out = theta.copy()
+    out[:, [2, 3, 5]] = coef
+    return out
+
+
+def _clip(theta: np.ndarray) -> np.ndarray:
+    theta[:, :2] = np.clip(theta[:, :2], -SLOPE_MAX, SLOPE_MAX)
+    theta[:, 2:4] = np.maximum(theta[:, 2:4], 0.0)
+    theta[:, 4] = np.clip(theta[:, 4], *np.log(ALPHA_RANGE))
+    theta[:, 5] = np.maximum(theta[:, 5], 0.0)
+    return theta
+
+
+def _cost(theta, lights, y, w) -> np.ndarray:
+    return (w * (_model(theta, lights) - y) ** 2).sum(axis=1)
+
+
+def levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w: np.ndarray, *,
+                        n_iter: int = N_ITER) -> tuple[np.ndarray, np.ndarray]:
+    """Minimise each pixel's weighted squared error over ``theta (n, 6)``, all pixels at once
+    (one damping factor per pixel, a step kept only where it lowers that pixel's cost).
+    Returns the parameters and each pixel's final cost."""
+    theta = _clip(theta.copy())
+    cost = _cost(theta, lights, y, w)
+    lam = np.full(len(theta), 1e-2)
+    for _ in range(n_iter):
+        value, jac = _model(theta, lights, jacobian=True)
+        jtj, grad = _normal_equations(jac, w, value - y)
+        diag = np.einsum("nii->ni", jtj) + 1e-12
+        system = jtj + (lam[:, None] * diag)[:, :, None] * np.eye(6)
+        step = np.linalg.solve(system, -grad[..., None])[..., 0]
+        trial = _clip(theta + step)
+        trial_cost = _cost(trial, lights, y, w)
+        better = trial_cost < cost
+        theta[better], cost[better] = trial[better], trial_cost[better]
+        lam = np.where(better, lam / 3, lam * 4)
+    return theta, cost
+
+
+def _starts(lights: Lights, y: np.ndarray, w: np.ndarray) -> list[np.ndarray]:
+    """Initial parameters: a flat normal with a rough lobe, and the normal that mirrors each
+    pixel's brightest observation (relative to its fall-off) into the camera, with a sharp one."""
+    n = len(y)
+    flat = np.zeros((n, 6))
+    flat[:, 4] = np.log(0.3)
+    brightest = np.argmax(np.where(w > 0, y / lights.g, -np.inf), axis=1)
+    half = lights.half[:, np.arange(n), brightest].T
+    mirror = np.zeros((n, 6))
+    mirror[:, 0], mirror[:, 1] = -half[:, 0] / half[:, 2], -half[:, 1] / half[:, 2]
+    mirror[:, 4] = np.log(0.1)
+    return [_linear_terms(_clip(t), lights, y, w) for t in (flat, mirror)]
+
+
+def _robust_weights(theta, lights, y, observed) -> np.ndarray:
+    """Cauchy weights of each observation from its residual over the pixel's robust scale."""
+    res = np.where(observed, _model(theta, lights) - y, 0.0)
+    mad = np.nanmedian(np.where(observed, np.abs(res), np.nan), axis=1, keepdims=True)
+    scale = ROBUST * 1.4826 * mad + 1e-9 * np.abs(y).max()
+    return observed / (1 + (res / scale) ** 2)
+
+
+def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
+                n_iter: int = N_ITER, robust: bool = True,
+                share: bool = True) -> tuple[Surface, np.ndarray]:
+    """Fit the model to each pixel's observed cells.
+
+    Parameters
+    ----------
+    samples : ndarray, shape (n, R, S)
+        Binned samples, NaN where unobserved.
+    geometry : Geometry
+        With ``pixels`` (each row's object-plane position).
+    led_exponent : float
+        ``m`` of the LED's ``cos^m`` emission profile.
+    n_iter : int
+        Levenberg-Marquardt iterations after the starts (:data:`START_ITER` each).
+    robust : bool
+        Refit once with Cauchy weights (shadows and glints the model does not hold count less).
+    share : bool
+        A pixel that saw too little of its own lobe (its highlight fell in a hole) takes the
+        median roughness of the tile's pixels that saw theirs, and refits its strength.
+
+    Returns
+    -------
+    surface : Surface
+    model : ndarray, shape (n, R * S)
+        The model over the whole lattice.
+    """
+    n = len(samples)
+    y_all = samples.reshape(n, -1).astype(np.float64)
+    observed_all = np.isfinite(y_all)
+    cells = np.flatnonzero(observed_all.any(axis=0))
+    lights_all = near_lights(geometry, led_exponent=led_exponent)
+    lights = lights_all.take(cells)
+    observed = observed_all[:, cells]
+    y = np.where(observed, y_all[:, cells], 0.0)
+    w = observed.astype(np.float64)
+    fits = [levenberg_marquardt(start, lights, y, w, n_iter=START_ITER)
+            for start in _starts(lights, y, w)]
+    best, cost = fits[0]
+    for theta, other in fits[1:]:
+        better = other < cost
+        best[better], cost[better] = theta[better], other[better]
+    best, _ = levenberg_marquardt(best, lights, y, w, n_iter=n_iter)
+    if robust:
+        w = _robust_weights(best, lights, y, observed)
+        best, _ = levenberg_marquardt(best, lights, y, w, n_iter=max(n_iter // 2, 1))
+    evidence = _evidence(best, lights_all, observed_all)
+    if share:
+        best = _share_roughness(best, evidence, lights, w)
+        evidence = _evidence(best, lights_all, observed_all)
+    normal = _normal(best[:, 0], best[:, 1])
+    surface = Surface(normal=normal, albedo=best[:, 2], specular=best[:, 3],
+                      roughness=np.exp(best[:, 4]), ambient=best[:, 5], evidence=evidence)
+    return surface, _model(best, lights_all)
+
+
+def _lobes(theta: np.ndarray, lights: Lights) -> np.ndarray:
+    """Each pixel's lobe alone (unit strength, no diffuse, no floor) at ``lights``."""
+    unit = theta.copy()
+    unit[:, [2, 3, 5]] = [0.0, 1.0, 0.0]
+    return _model(unit, lights)
+
+
+def _evidence(theta: np.ndarray, lights: Lights, observed: np.ndarray) -> np.ndarray:
+    """How much of each pixel's highlight was seen: the lobe's largest value on an observed cell
+    over its largest value on the lattice (1: the peak was observed; near 0: it fell in a
+    hole)."""
+    lobe = _lobes(theta, lights)
+    return np.where(observed, lobe, 0.0).max(axis=1) / np.maximum(lobe.max(axis=1), 1e-300)
+
+
+def _share_roughness(theta: np.ndarray, evidence: np.ndarray, lights: Lights,
+                     w: np.ndarray) -> np.ndarray:
+    """Pixels that did not see their highlight's peak (evidence below :data:`SHARE_EVIDENCE`)
+    and fitted a lobe sharper than the tile's pixels that did are given the median roughness of
+    those (the same materials, seen from other angles elsewhere in the tile), with the strength
+    that keeps the lobe's least-squares fit on their observed cells: a lobe is never sharpened
+    into a hole that no observation supports. A prior, not a constraint: pixels that saw their
+    peak keep their own."""
+    good = evidence >= SHARE_EVIDENCE
+    shared = np.median(theta[good, 4]) if good.sum() >= 4 else np.log(ALPHA_RANGE[0])
+    weak = ~good & (theta[:, 4] < shared)
+    if not weak.any():
+        return theta
+    out = theta.copy()
+    out[weak, 4] = shared
+    rows = lights.rows(weak)
+    old, new = _lobes(theta[weak], rows), _lobes(out[weak], rows)
+    scale = (w[weak] * old * new).sum(axis=1) / np.maximum((w[weak] * new**2).sum(axis=1), 1e-300)
+    out[weak, 3] *= np.maximum(scale, 0.0)
+    return out
+
+
+def render(surface: Surface, lights: Lights) -> np.ndarray:
+    """The model of ``surface`` at ``lights``, ``(n, M)``."""
+    n = surface.normal
+    theta = np.column_stack([-n[:, 0] / n[:, 2], -n[:, 1] / n[:, 2], surface.albedo,
+                             surface.specular, np.log(surface.roughness), surface.ambient])
+    return _model(theta, lights)
+
+
+def damped_residual(residual: np.ndarray, geometry: Geometry, *,
+                    damp_cells: float = DAMP_CELLS) -> np.ndarray:
+    """The residual ``(n, R, S)`` (NaN unobserved) interpolated over the lattice by a thin-plate
+    RBF and damped with the distance (in cells) from the pixel's nearest observation."""
+    from scipy import ndimage
+
+    from ltmstore.solve import rbf
+
+    interpolated = rbf.solve(residual, geometry).reshape(len(residual), -1)
+    observed = np.isfinite(residual)
+    damp = np.empty(interpolated.shape)
+    for mask in np.unique(observed.reshape(len(residual), -1), axis=0):
+        rows = (observed.reshape(len(residual), -1) == mask).all(axis=1)
+        dist = ndimage.distance_transform_edt(~mask.reshape(residual.shape[1:]))
+        damp[rows] = np.exp(-((dist.ravel() / damp_cells) ** 2))
+    return interpolated * damp
+
+
+def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
+          share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
+          n_iter: int = N_ITER) -> np.ndarray:
+    """Reconstruct a batch of near-light LTFs with the physical model (see the module).
+
+    Parameters
+    ----------
+    samples : ndarray, shape (n, R, S)
+        Binned samples, NaN where unobserved.
+    geometry : Geometry
+        Must carry ``pixels``.
+    led_exponent : float
+        ``m`` of the LED's ``cos^m`` emission.
+    share : bool
+        Pixels whose highlight fell in a hole take the tile's roughness (:func:`fit_surface`).
+    residual : float
+        Weight in ``[0, 1]`` of the damped interpolation of the model's residual at the
+        observed cells (1: the result interpolates the observations; 0: the model alone, which
+        also smooths the noise of the observed cells).
+    damp_cells : float
+        Distance (cells) over which the residual fades away from the observations.
+    n_iter : int
+        Levenberg-Marquardt iterations after the starts.
+
+    Returns
+    -------
+    ndarray of float32, same shape as ``samples``.
+    """
+    if not 0.0 <= residual <= 1.0:
+        raise LtmError(f"physical residual weight {residual!r} must lie in [0, 1]")
+    if samples.ndim != 3:
+        raise LtmError(f"method 'physical' takes a 4-D capture (n, R, S); got samples of shape "
+                       f"{samples.shape}")
+    if geometry.pixels is not None and len(geometry.pixels) != len(samples):
+        raise LtmError(f"geometry holds {len(geometry.pixels)} pixel positions for a batch of "
+                       f"{len(samples)} pixels")
+    if not np.isfinite(samples).any(axis=tuple(range(1, samples.ndim))).all():
+        raise LtmError("method 'physical' needs at least one observed cell per pixel")
+    _, model = fit_surface(samples, geometry, led_exponent=led_exponent, n_iter=n_iter,
+                           share=share)
+    out = model
+    if residual > 0:
+        res = samples.reshape(len(samples), -1) - model
+        out = model + residual * damped_residual(res.reshape(samples.shape), geometry,
+                                                 damp_cells=damp_cells)
+    return out.reshape(samples.shape).astype(np.float32)
