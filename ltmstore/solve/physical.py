@@ -240,6 +240,53 @@ def _robust_weights(theta, lights, y, observed) -> np.ndarray:
     return observed / (1 + (res / scale) ** 2)
 
 
+def fit_parameters(y: np.ndarray, w: np.ndarray, lights: Lights, *, n_iter: int = N_ITER,
+                   robust: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The model's parameters ``theta = (p, q, rho, k, log alpha, a)`` ``(n, 6)`` fitted to
+    values ``y (n, K)`` with weights ``w (n, K)`` (0: unobserved) at ``lights``: a few
+    Levenberg-Marquardt iterations from each start (:func:`_starts`), then more from each
+    pixel's better one, then (``robust``) a refit with Cauchy weights. Returns ``theta`` and the
+    weights of the last fit."""
+    fits = [levenberg_marquardt(start, lights, y, w, n_iter=START_ITER)
+            for start in _starts(lights, y, w)]
+    best, cost = fits[0]
+    for theta, other in fits[1:]:
+        better = other < cost
+        best[better], cost[better] = theta[better], other[better]
+    best, _ = levenberg_marquardt(best, lights, y, w, n_iter=n_iter)
+    if robust:
+        w = _robust_weights(best, lights, y, w > 0)
+        best, _ = levenberg_marquardt(best, lights, y, w, n_iter=max(n_iter // 2, 1))
+    return best, w
+
+
+def far_lights(directions: np.ndarray, n: int) -> Lights:
+    """Distant lights at unit ``directions (M, 3)``, the same for all ``n`` pixels (no
+    fall-off): a classic RTI capture."""
+    toward = np.ascontiguousarray(np.asarray(directions, dtype=np.float64).T)
+    half = toward + np.array([0.0, 0.0, 1.0])[:, None]
+    half /= np.sqrt((half**2).sum(axis=0))
+    shape = (3, n, toward.shape[1])
+    return Lights(np.broadcast_to(toward[:, None], shape), np.broadcast_to(half[:, None], shape),
+                  np.ones(shape[1:]))
+
+
+def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.ndarray:
+    """Parameters ``(n, 3, 6)`` (per colour channel) fitted to linear RGB ``rgb (n, M, 3)``
+    observed at every light: the normal and roughness from the luminance (one nonlinear fit),
+    albedo, lobe strength and floor per channel (linear least squares at that geometry)."""
+    from ltmstore.core.dims import LUMA
+
+    luminance = rgb @ LUMA
+    theta, w = fit_parameters(luminance, np.ones_like(luminance), lights, n_iter=n_iter)
+    return np.stack([_linear_terms(theta, lights, rgb[..., c], w) for c in range(3)], axis=1)
+
+
+def render_colour(theta: np.ndarray, lights: Lights) -> np.ndarray:
+    """Linear RGB ``(n, M, 3)`` of per-channel parameters ``theta (n, 3, 6)`` at ``lights``."""
+    return np.stack([_model(theta[:, c], lights) for c in range(3)], axis=-1)
+
+
 def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
                 n_iter: int = N_ITER, robust: bool = True,
                 share: bool = True) -> tuple[Surface, np.ndarray]:
@@ -276,16 +323,7 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     observed = observed_all[:, cells]
     y = np.where(observed, y_all[:, cells], 0.0)
     w = observed.astype(np.float64)
-    fits = [levenberg_marquardt(start, lights, y, w, n_iter=START_ITER)
-            for start in _starts(lights, y, w)]
-    best, cost = fits[0]
-    for theta, other in fits[1:]:
-        better = other < cost
-        best[better], cost[better] = theta[better], other[better]
-    best, _ = levenberg_marquardt(best, lights, y, w, n_iter=n_iter)
-    if robust:
-        w = _robust_weights(best, lights, y, observed)
-        best, _ = levenberg_marquardt(best, lights, y, w, n_iter=max(n_iter // 2, 1))
+    best, w = fit_parameters(y, w, lights, n_iter=n_iter, robust=robust)
     evidence = _evidence(best, lights_all, observed_all)
     if share:
         best = _share_roughness(best, evidence, lights, w)

@@ -38,12 +38,13 @@ from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from ltmstore.core import store as st
-from ltmstore.core.dims import EXPECTED_ERROR, FRAMES, LTM, UNSUPPORTED, Lattice
+from ltmstore.core.dims import EXPECTED_ERROR, FRAMES, LTM, LUMA, UNSUPPORTED, Lattice
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import DISK, FAR, coordinate_attrs, disk_to_direction
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.solve import Geometry
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
+from ltmstore.stages import surface as sf
 from ltmstore.stages.plan import plan_tiles, write_method_map
 
 FAR_LATTICE = (8, 8)
@@ -52,13 +53,14 @@ CHOICE_PIXELS = 1024  # pixels of a tile whose leave-one-out error chooses its m
 # A tile leaves the image's model only when its own lowers the tile's MSE by more than this
 # fraction of the image's mean MSE (see choose_tiles).
 LEAVE_GLOBAL = 1.0
-FAR_METHODS = ("auto", "ptm", "hsh", "rbf")
+FAR_METHODS = ("auto", "ptm", "hsh", "rbf", "physical")
 
 
 def far_models(method: str) -> tuple[Model, ...]:
     """The candidate models of ``method`` on a far-light store."""
     families = {"auto": candidates(), "ptm": (Model("ptm"),),
-                "hsh": (Model("hsh2"), Model("hsh3")), "rbf": tuple(rbf_models())}
+                "hsh": (Model("hsh2"), Model("hsh3")), "rbf": tuple(rbf_models()),
+                "physical": candidates()}  # the classic models still choose per tile first
     if method not in families:
         raise LtmError(f"method {method!r} does not fit far lights (a classic RTI capture); "
                        f"expected one of {', '.join(FAR_METHODS)}")
@@ -124,9 +126,17 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
         rows, cols, values = pixels(index)
         shape = (rows.stop - rows.start, cols.stop - cols.start)
         best = int(chosen[index])
-        fitted = np.clip(to_lattice[best] @ values, 0, None)
+        if best < len(models):
+            fitted, residual = to_lattice[best] @ values, loo32[best] @ values
+        else:  # the surface model plus its smoothed residual
+            tile_theta = theta[rows, cols].reshape(-1, 3, 6)
+            fitted = (smoother.weights(train, cells) @ values
+                      + sf.correction(tile_theta, train, cells, smoother, color=False))
+            residual = loo_operator(smoother.hat(train)) @ (
+                values - sf.model_encoded(tile_theta, train, color=False))
+        fitted = np.clip(fitted, 0, None)
         ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
-        rms = np.sqrt(np.mean((loo32[best] @ values) ** 2, axis=0))
+        rms = np.sqrt(np.mean(residual**2, axis=0))
         spread = np.ptp(values, axis=0)
         error[rows, cols] = (rms / np.where(spread > 0, spread, np.inf)).reshape(shape)
         unsupported[rows, cols] = False
@@ -138,10 +148,17 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
                                      tiles)))
         chosen = choose_tiles(mse, models, len(train)).reshape(plan.grid)
         timings["fit_s"] = time.perf_counter() - solve_start  # the models are chosen
+        names = [m.name for m in models]
+        if method in ("auto", "physical"):
+            surface = _surface(group, valid, train, models[pick(mse.mean(axis=0), models,
+                                                                len(train))], method, timings)
+            if surface is not None:
+                theta, smoother = surface
+                chosen[...] = len(names)
+                names.append(sf.PREFIX + smoother.name)
         list(tqdm(pool.map(write, tiles), total=plan.n_tiles, desc="reconstruct tiles",
                   disable=not progress))
     timings["solve_s"] = time.perf_counter() - solve_start
-    names = [m.name for m in models]
     write_method_map(group, plan, chosen, names, "leave-one-light-out error")
     counts = {names[i]: int(c) for i, c in zip(*np.unique(chosen, return_counts=True),
                                                 strict=True)}
@@ -156,6 +173,29 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
             "seconds_per_pixel": timings["solve_s"] / int(np.prod(plan.image))}
     st.complete_stage(group, "reconstruct", info)
     return info
+
+
+def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: Model,
+             method: str, timings: dict) -> tuple[np.ndarray, Model] | None:
+    """Fit the surface model (:mod:`ltmstore.stages.surface`) to the whole image and write its
+    maps, where ``method`` is ``physical`` or where (``auto``) it predicts held-out lights of a
+    sample of the pixels better than ``classic``, the image's choice; its parameters
+    ``(y, x, 3, 6)`` and residual smoother, or None (the classic models stay)."""
+    start = time.perf_counter()
+    rgb = sf.frames_rgb(group, valid)
+    flat = rgb.reshape(len(rgb), -1, 3)
+    sample = np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS]
+    scores = sf.cross_validated(flat[:, np.sort(sample)], train, classic)
+    timings["surface_choice_s"] = time.perf_counter() - start
+    timings["surface_heldout_mse"] = {"surface": scores[0], classic.name: scores[1]}
+    if method == "auto" and scores[0] >= scores[1]:
+        return None
+    theta = sf.fit_image(rgb, train, workers=min(2, os.cpu_count() or 1))
+    sf.write_surface(group, theta)
+    encoded = linear_to_srgb((flat[:, np.sort(sample)] @ LUMA).astype(np.float32))
+    smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[np.sort(sample)], train)
+    timings["surface_s"] = time.perf_counter() - start
+    return theta, smoother
 
 
 def _loo_mse(values: np.ndarray, loo: np.ndarray, usable: np.ndarray) -> np.ndarray:

@@ -61,6 +61,7 @@ from ltmstore.core.store import open_store
 from ltmstore.core.transfer import encode_images, linear_to_srgb, srgb_to_linear
 from ltmstore.solve.hsh import hsh_basis
 from ltmstore.solve.lightfit import Model
+from ltmstore.stages import surface
 from ltmstore.stages.by_light import light_major
 from ltmstore.stages.plan import METHOD_MAP
 
@@ -429,13 +430,18 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
     codes = chosen.values
     per_pixel = np.repeat(np.repeat(codes, ty, 0), tx, 1)[: ds.sizes["y"], : ds.sizes["x"]]
     per_pixel = xr.DataArray(per_pixel, dims=("y", "x"))
-    models = {int(c): Model(chosen.attrs["methods"][int(c)]) for c in np.unique(codes)}
+    names = {int(c): chosen.attrs["methods"][int(c)] for c in np.unique(codes)}
+    models = {c: Model(name.removeprefix(surface.PREFIX)) for c, name in names.items()}
     weights = {c: xr.DataArray(m.weights(train, dirs).astype(np.float32), dims=(LIGHT, T))
                for c, m in models.items()}
+    physical = [c for c, name in names.items() if name.startswith(surface.PREFIX)]
 
     def apply(encoded: xr.DataArray) -> xr.DataArray:
         """The models on sRGB-encoded frames, decoded to linear light."""
-        terms = [xr.dot(encoded, w, dim=T).where(per_pixel == c, 0) for c, w in weights.items()]
+        terms = [(xr.dot(encoded, w, dim=T) + (_surface_correction(ds, train, dirs, models[c],
+                                                                   COLOR in encoded.dims)
+                                              if c in physical else 0)).where(per_pixel == c, 0)
+                 for c, w in weights.items()]
         image = sum(terms[1:], terms[0]).transpose(LIGHT, "y", ...)
         return _transfer(image.clip(min=0), srgb_to_linear).assign_coords(
             {LIGHT: np.arange(len(dirs)), "light_lx": (LIGHT, dirs[:, 0]),
@@ -449,6 +455,17 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
               .astype(np.float32) for c in ("cb", "cr"))
     rgb = _stack_rgb(luminance, cb, cr).clip(min=0)
     return apply(_transfer(rgb, linear_to_srgb)).transpose(LIGHT, "y", "x", COLOR)
+
+
+def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray, smoother: Model,
+                        color: bool) -> xr.DataArray:
+    """What the surface model adds to its residual smoother's image at ``dirs``
+    (:func:`ltmstore.stages.surface.correction`), sRGB-encoded, ``(light, y, x[, color])``."""
+    theta = surface.read_surface(ds)
+    image = theta.shape[:2]
+    corr = surface.correction(theta.reshape(-1, 3, 6), train, dirs, smoother, color=color)
+    dims = (LIGHT, "y", "x", COLOR) if color else (LIGHT, "y", "x")
+    return xr.DataArray(corr.reshape(len(dirs), *image, *corr.shape[2:]), dims=dims)
 
 
 def _transfer(values: xr.DataArray, func) -> xr.DataArray:
