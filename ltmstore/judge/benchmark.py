@@ -33,7 +33,7 @@ from ltmstore.solve import METHODS, Geometry, get_method
 from ltmstore.solve.select import choose_params
 from ltmstore.stages.relight import relight
 from ltmstore.stages.resample import bin_frames, bin_positions
-from ltmstore.synthetic.render import iter_frames, render_ltm
+from ltmstore.synthetic.render import GGX, Shading, iter_frames, render_ltm
 from ltmstore.synthetic.simulate import EXPOSURE_PEAK, plan_simulation
 
 SCENES = ("canvas", "icon", "relief")
@@ -63,24 +63,31 @@ class Case:
         return float(np.isfinite(self.samples).any(axis=0).mean())
 
 
-def simulate_frames(scene: str, path_density: float, *, size: int, seed: int):
+def simulate_frames(scene: str, path_density: float, *, size: int, seed: int,
+                    shading: Shading = GGX):
     """Luminance frames at the true light positions, the recorded positions, and the plan."""
     plan = plan_simulation(scene=scene, path_density=path_density, seed=seed, size=size)
     lights = plan.frame_lights()
-    frames = np.stack([f @ LUMA.astype(np.float32) for f in iter_frames(plan.scene, lights)])
+    frames = np.stack([f @ LUMA.astype(np.float32)
+                       for f in iter_frames(plan.scene, lights, shading=shading)])
     r, s, z = plan.tracker.at(plan.frame_times)
     valid = np.abs(z - plan.plane.height) <= 0.05 * plan.plane.height
     return frames, (r, s, valid), plan
 
 
-def make_cases(scene: str, path_density: float, lattices, *, size: int, seed: int) -> list[Case]:
-    """One :class:`Case` per lattice side in ``lattices`` for one simulated trajectory."""
-    frames, (r, s, valid), plan = simulate_frames(scene, path_density, size=size, seed=seed)
+def make_cases(scene: str, path_density: float, lattices, *, size: int, seed: int,
+               shading: Shading = GGX) -> list[Case]:
+    """One :class:`Case` per lattice side in ``lattices`` for one simulated trajectory, rendered
+    with ``shading`` (:data:`~ltmstore.synthetic.render.MISMATCHED`: physics no fitted model
+    assumes)."""
+    frames, (r, s, valid), plan = simulate_frames(scene, path_density, size=size, seed=seed,
+                                                  shading=shading)
     rng = np.random.default_rng(seed)
     cases = []
     for n in lattices:
         lattice = Lattice.from_plane(plan.plane, (n, n))
-        truth = render_ltm(plan.scene, lattice, plan.plane.height) @ LUMA.astype(np.float32)
+        truth = render_ltm(plan.scene, lattice, plan.plane.height,
+                           shading=shading) @ LUMA.astype(np.float32)
         exposure = EXPOSURE_PEAK / float(truth.max())
         noisy = frames * exposure + rng.normal(0, NOISE, frames.shape).astype(np.float32)
         binned = bin_frames(da.from_array(noisy), bin_positions(lattice, (r, s), valid))

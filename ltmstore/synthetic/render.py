@@ -14,6 +14,11 @@ Geometry follows :mod:`ltmstore.core.dims`: object plane ``z = 0``, pixel centre
 ``(X, Y, Z) = (r, s, z)``. The camera is orthographic looking straight down unless a
 :class:`PinholeCamera` is given; the image always stays on the object-plane pixel grid (the
 rectified view), only the view direction changes.
+
+:class:`Shading` changes the physics for benchmarks that must not share the fitted model's
+assumptions (:data:`MISMATCHED`): a Beckmann or Blinn-Phong lobe instead of GGX, an LED whose
+emission falls off as ``cos^m`` about its downward axis, an ambient floor, and a second, broader
+clear-coat gloss layer. The default, :data:`GGX`, is the physics above.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from ltmstore.core.dims import LIGHT_DIMS, LUMA, VIEW_DIMS, Lattice
 from ltmstore.core.errors import LtmError
 from ltmstore.synthetic.scenes import Scene
 
+LOBES = ("ggx", "beckmann", "phong")
 MARCH_STEP_PX = 0.5  # shadow ray step, pixels (horizontal)
 SHADOW_EPS = 1e-7  # metres: a height must exceed the ray by this to occlude it
 
@@ -60,11 +66,56 @@ class PinholeCamera:
             raise LtmError(f"camera focal_px {self.focal_px!r} must be a positive number")
 
 
+@dataclass(frozen=True)
+class Shading:
+    """Options of the physics, for renders that do not share a fitted model's assumptions.
+
+    Parameters
+    ----------
+    lobe : {"ggx", "beckmann", "phong"}
+        Microfacet distribution of the specular lobe (Blinn-Phong with exponent
+        ``2 / alpha^2 - 2`` for ``phong``); the masking term stays Smith GGX.
+    led_exponent : float
+        The light emits ``I0 cos^m`` about its downward axis (``m = 0``: isotropic).
+    ambient : float
+        A floor added to every pixel: ``ambient * albedo * I0 / z^2`` (``z``: the light's
+        height), light from the room that does not move with the LED.
+    clearcoat : float
+        Strength of a second specular layer (Fresnel ``F0 = 0.04``, GGX) with roughness
+        ``clearcoat_roughness``, over the whole scene.
+    clearcoat_roughness : float
+    """
+
+    lobe: str = "ggx"
+    led_exponent: float = 0.0
+    ambient: float = 0.0
+    clearcoat: float = 0.0
+    clearcoat_roughness: float = 0.4
+
+    def __post_init__(self) -> None:
+        if self.lobe not in LOBES:
+            raise LtmError(f"shading lobe {self.lobe!r} is not one of {', '.join(LOBES)}")
+        for name in ("led_exponent", "ambient", "clearcoat"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise LtmError(f"shading {name} {value!r} must be a number >= 0")
+        if not 0 < self.clearcoat_roughness <= 1:
+            raise LtmError(f"shading clearcoat_roughness {self.clearcoat_roughness!r} must be "
+                           "in (0, 1]")
+
+
+GGX = Shading()
+# Not the family of ltmstore.solve.physical: Beckmann lobe, cos^2 LED, 2 % floor, clear coat.
+MISMATCHED = Shading(lobe="beckmann", led_exponent=2.0, ambient=0.02, clearcoat=0.25)
+
+
 class _Renderer:
     """Per-scene precomputation (positions, normals, view vectors) shared by all lights."""
 
-    def __init__(self, scene: Scene, camera: PinholeCamera | None = None) -> None:
+    def __init__(self, scene: Scene, camera: PinholeCamera | None = None,
+                 shading: Shading = GGX) -> None:
         self.scene = scene
+        self.shading = shading
         x, y = scene.pixel_centres()
         self.height = np.asarray(scene.height, dtype=np.float64)
         self.pos = np.stack([x, y, self.height])
@@ -88,6 +139,7 @@ class _Renderer:
             self.v = to_cam / np.linalg.norm(to_cam, axis=0)
         self.ndotv = np.sum(self.n * self.v, axis=0)
         self.g1v = _smith_g1(self.ndotv, self.alpha2)
+        self.g1v_coat = _smith_g1(self.ndotv, self.shading.clearcoat_roughness**4)
         self.sight = None if camera is None else _sight_lines(self.scene, self.height, camera)
 
     def rectified(self, light: np.ndarray, intensity: float = 1.0) -> np.ndarray:
@@ -113,7 +165,12 @@ class _Renderer:
         cos = np.where(lit, ndotl, 0.0)
         shaded = self.kd * cos[..., None] + np.where(lit[..., None], spec_cos, 0.0)
         visible = ~self._occluded(light, lit)
-        out = shaded * (intensity * visible / d2)[..., None]
+        emitted = intensity * visible / d2
+        if self.shading.led_exponent:  # cos of the angle off the LED's downward axis
+            emitted = emitted * l_dir[2].clip(min=0) ** self.shading.led_exponent
+        out = shaded * emitted[..., None]
+        if self.shading.ambient:
+            out += self.kd * np.pi * (self.shading.ambient * intensity / light[2] ** 2)
         return out.astype(np.float32)
 
     def _specular(self, l_dir: np.ndarray, ndotl: np.ndarray) -> np.ndarray:
@@ -121,11 +178,17 @@ class _Renderer:
         half /= np.linalg.norm(half, axis=0)
         ndoth = np.clip(np.sum(self.n * half, axis=0), 0.0, 1.0)
         vdoth = np.clip(np.sum(self.v * half, axis=0), 0.0, 1.0)
+        schlick = ((1 - vdoth) ** 5)[..., None]
+        cos_l = np.clip(ndotl, 0.0, 1.0)
         a2 = self.alpha2
-        dist = a2 / (np.pi * (ndoth**2 * (a2 - 1) + 1) ** 2)
-        fresnel = self.f0 + (1 - self.f0) * ((1 - vdoth) ** 5)[..., None]
-        g = _smith_g1(np.clip(ndotl, 0.0, 1.0), a2) * self.g1v
-        return fresnel * (dist * g)[..., None]
+        dist = _distribution(self.shading.lobe, ndoth, a2)
+        lobe = (self.f0 + (1 - self.f0) * schlick) * (dist * _smith_g1(cos_l, a2)
+                                                      * self.g1v)[..., None]
+        if self.shading.clearcoat:
+            c2 = self.shading.clearcoat_roughness**4
+            coat = _distribution("ggx", ndoth, c2) * _smith_g1(cos_l, c2) * self.g1v_coat
+            lobe = lobe + self.shading.clearcoat * (0.04 + 0.96 * schlick) * coat[..., None]
+        return lobe
 
     def _occluded(self, light: np.ndarray, lit: np.ndarray) -> np.ndarray:
         """Hard cast shadows: march every lit pixel towards the light (vectorised over pixels)."""
@@ -190,6 +253,17 @@ def _sight_lines(scene: Scene, height: np.ndarray, camera: PinholeCamera,
     return np.stack([rows - ratio * dy, cols - ratio * dx])
 
 
+def _distribution(lobe: str, ndoth: np.ndarray, a2: np.ndarray | float) -> np.ndarray:
+    """Normal distribution ``D(n.h)`` of the microfacet ``lobe`` with ``alpha^2 = a2``."""
+    c2 = np.maximum(ndoth, 1e-6) ** 2
+    if lobe == "beckmann":
+        return np.exp((c2 - 1) / (c2 * a2)) / (np.pi * a2 * c2 * c2)
+    if lobe == "phong":
+        power = 2 / a2 - 2
+        return (power + 2) / (2 * np.pi) * np.maximum(ndoth, 0.0) ** power
+    return a2 / (np.pi * (c2 * (a2 - 1) + 1) ** 2)
+
+
 def _smith_g1(cos: np.ndarray, a2: np.ndarray) -> np.ndarray:
     """Smith GGX masking for one direction."""
     return 2 * cos / (cos + np.sqrt(a2 + (1 - a2) * cos * cos) + 1e-300)
@@ -232,7 +306,7 @@ def _as_light(light) -> np.ndarray:
 
 
 def render_frame(scene: Scene, light, *, camera: PinholeCamera | None = None,
-                 intensity: float = 1.0) -> np.ndarray:
+                 intensity: float = 1.0, shading: Shading = GGX) -> np.ndarray:
     """Render the scene lit by a point light at ``light = (r, s, z)``.
 
     Parameters
@@ -244,19 +318,21 @@ def render_frame(scene: Scene, light, *, camera: PinholeCamera | None = None,
         Default: orthographic, looking straight down.
     intensity : float
         Radiant intensity ``I0`` of the light.
+    shading : Shading
+        Options of the physics (default: the GGX model of the module docstring).
 
     Returns
     -------
     ndarray, shape (H, W, 3), float32
         Linear RGB radiance.
     """
-    return _Renderer(scene, camera)(_as_light(light), intensity)
+    return _Renderer(scene, camera, shading)(_as_light(light), intensity)
 
 
 def iter_frames(scene: Scene, lights: Iterable, *, camera: PinholeCamera | None = None,
-                intensity: float = 1.0) -> Iterator[np.ndarray]:
+                intensity: float = 1.0, shading: Shading = GGX) -> Iterator[np.ndarray]:
     """Yield :func:`render_frame` for each light of ``lights`` (streaming; shares set-up)."""
-    renderer = _Renderer(scene, camera)
+    renderer = _Renderer(scene, camera, shading)
     for light in lights:
         yield renderer(_as_light(light), intensity)
 
@@ -273,7 +349,7 @@ def render_frames(scene: Scene, lights, *, camera: PinholeCamera | None = None,
 
 def render_ltm(scene: Scene, lattice: Lattice, height: float, *,
                camera: PinholeCamera | None = None, intensity: float = 1.0,
-               progress: bool = False) -> np.ndarray:
+               progress: bool = False, shading: Shading = GGX) -> np.ndarray:
     """The ground-truth light transport matrix at the lattice cell centres.
 
     Parameters
@@ -287,6 +363,7 @@ def render_ltm(scene: Scene, lattice: Lattice, height: float, *,
     intensity : float
     progress : bool
         Show a progress bar over the lights.
+    shading : Shading
 
     Returns
     -------
@@ -297,7 +374,7 @@ def render_ltm(scene: Scene, lattice: Lattice, height: float, *,
         raise LtmError(f"render_ltm needs an (r, s) lattice, got dims {lattice.dims}")
     r, s = lattice.centres(0), lattice.centres(1)
     out = np.empty((*scene.shape, len(r), len(s), 3), dtype=np.float32)
-    renderer = _Renderer(scene, camera)
+    renderer = _Renderer(scene, camera, shading)
     for i, j in tqdm(np.ndindex(len(r), len(s)), total=len(r) * len(s), disable=not progress,
                      desc="truth LTM", unit="light"):
         out[:, :, i, j] = renderer(np.array([r[i], s[j], height]), intensity)

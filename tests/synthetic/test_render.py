@@ -8,7 +8,11 @@ import pytest
 from ltmstore.core.dims import Lattice, Plane
 from ltmstore.core.errors import LtmError
 from ltmstore.synthetic.render import (
+    LOBES,
+    MISMATCHED,
     PinholeCamera,
+    Shading,
+    _distribution,
     is_occluded,
     render_frame,
     render_frames,
@@ -166,3 +170,49 @@ def test_errors():
         PinholeCamera(0.0, 0.0, -1.0, 100.0)
     with pytest.raises(LtmError, match="scene size 4 must be an integer of at least 8"):
         make_scene("canvas", size=4)
+
+
+@pytest.mark.parametrize("lobe", LOBES)
+@pytest.mark.parametrize("alpha", [0.1, 0.3, 0.6])
+def test_every_lobe_is_a_normalised_distribution(lobe, alpha):
+    """The microfacet distributions of :class:`Shading` integrate to one: int D cos dw = 1."""
+    theta = np.linspace(0, np.pi / 2, 200001)
+    d = _distribution(lobe, np.cos(theta), alpha**2)
+    integral = np.trapezoid(d * np.cos(theta) * np.sin(theta) * 2 * np.pi, theta)
+    assert integral == pytest.approx(1.0, abs=2e-3)
+
+
+def test_led_profile_dims_off_axis_pixels_by_cos_power(lambertian):
+    p = _centre(lambertian, PIXEL)
+    led = Shading(led_exponent=3.0)
+    above, aside = p + [0, 0, 0.2], p + [0.2, 0, 0.2]  # 0 and 45 degrees off the LED's axis
+    for light, cos in ((above, 1.0), (aside, np.sqrt(0.5))):
+        plain = render_frame(lambertian, light)[PIXEL]
+        np.testing.assert_allclose(render_frame(lambertian, light, shading=led)[PIXEL],
+                                   plain * cos**3, rtol=1e-5)
+
+
+def test_ambient_floor_lights_a_cast_shadow(block_scene):
+    yx, light = (24, 20), np.array([0.2, 0.0, 0.05])  # low light beyond the block: shadowed
+    assert is_occluded(block_scene, yx, light)
+    ambient = render_frame(block_scene, light, shading=Shading(ambient=0.05))[yx]
+    expected = 0.05 * np.asarray(block_scene.albedo)[yx] / 0.05**2
+    np.testing.assert_allclose(ambient, expected * (1 - block_scene.metallic[yx]), rtol=1e-5)
+
+
+def test_mismatched_shading_changes_the_highlight_not_the_diffuse(lambertian):
+    p = _centre(lambertian, PIXEL)
+    gloss = make_scene("canvas", size=32)
+    yx = (16, 16)
+    q = _centre(gloss, yx) + [0, 0, 0.3]
+    plain, other = render_frame(gloss, q)[yx], render_frame(gloss, q, shading=MISMATCHED)[yx]
+    assert abs(other[1] / plain[1] - 1) > 0.05  # the lobe differs where it peaks
+    flat = render_frame(lambertian, p + [0, 0, 0.3], shading=Shading(lobe="phong"))[PIXEL]
+    np.testing.assert_allclose(flat, render_frame(lambertian, p + [0, 0, 0.3])[PIXEL])
+
+
+@pytest.mark.parametrize("kwargs", [{"lobe": "cook"}, {"led_exponent": -1.0},
+                                    {"ambient": float("nan")}, {"clearcoat_roughness": 0.0}])
+def test_bad_shading_is_refused(kwargs):
+    with pytest.raises(LtmError, match=next(iter(kwargs))):
+        Shading(**kwargs)
