@@ -1,5 +1,5 @@
-"""Normal maps of the SynthRTI scenes by classic Lambertian photometric stereo: the baseline that
-a physical model (issue 15) must beat.
+"""Normal maps of the SynthRTI scenes: the surface model of ``ltm reconstruct`` against classic
+Lambertian photometric stereo, the baseline that a physical model (issue 15) must beat.
 
 Run: ``python bench/normals_baseline.py [--data ../shared/data/synthrti] [--out bench/results]``.
 For each scene, the 49 ``dome/`` photographs (sRGB decoded to linear, luminance) and their
@@ -8,8 +8,10 @@ For each scene, the 49 ``dome/`` photographs (sRGB decoded to linear, luminance)
 (shadows) and brightest 10 % (highlights) of its lights. The angle to ``normals.png`` (16-bit
 RGB, ``n = 2 v / 65535 - 1``) is reported per scene, mean and median in degrees, over the pixels
 whose truth is a unit normal, beside ``flat``: the constant normal ``(0, 0, 1)``, the trivial
-answer (the SynthRTI surfaces tilt by at most a few degrees, so it is the bar to beat). Writes
-``normals_baseline.json`` and prints a Markdown table.
+answer (the SynthRTI surfaces tilt by at most a few degrees, so it is the bar to beat), and
+``surface``: the normals of :mod:`ltmstore.stages.surface` (the per-pixel reflectance model
+that ``ltm reconstruct`` fits to a far-light capture and stores as ``normal``) fitted to the
+same photographs and directions. Writes ``normals_baseline.json`` and prints a Markdown table.
 """
 
 from __future__ import annotations
@@ -25,16 +27,24 @@ import numpy as np
 
 from ltmstore.capture.lp import read_lp
 from ltmstore.core.transfer import srgb_to_linear
+from ltmstore.solve.physical import unit_normal
+from ltmstore.stages.surface import fit_image
 
 LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+KINDS = ("flat", "plain", "trimmed", "surface")
 TRIM = (0.25, 0.10)  # darkest and brightest fractions of each pixel's lights left out
 
 
-def luminance(path: Path) -> np.ndarray:
-    """Linear luminance of an sRGB image file, ``(H, W)`` float32."""
+def linear_rgb(path: Path) -> np.ndarray:
+    """Linear RGB of an sRGB image file, ``(H, W, 3)`` float32."""
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
-    rgb = bgr[..., ::-1].astype(np.float32) / np.iinfo(bgr.dtype).max
-    return srgb_to_linear(rgb) @ LUMA
+    return srgb_to_linear(bgr[..., ::-1].astype(np.float32) / np.iinfo(bgr.dtype).max)
+
+
+def surface_normals(rgb: np.ndarray, lights: np.ndarray) -> np.ndarray:
+    """Unit normals ``(H * W, 3)`` of the surface model fitted to ``rgb (K, H, W, 3)``."""
+    theta = fit_image(rgb, lights, workers=os.cpu_count() or 1).reshape(-1, 3, 6)
+    return unit_normal(theta[:, 0, 0], theta[:, 0, 1])
 
 
 def truth_normals(path: Path) -> np.ndarray:
@@ -67,14 +77,19 @@ def angles(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 def scene_row(folder: Path) -> dict:
     names, lights = read_lp(folder / "dome" / "dirs.lp")
-    images = np.stack([luminance(folder / "dome" / n).ravel() for n in names])
+    rgb = np.stack([linear_rgb(folder / "dome" / n) for n in names])
+    images = (rgb @ LUMA).reshape(len(names), -1)
     truth = truth_normals(folder / "normals.png").reshape(-1, 3)
     valid = np.abs(np.linalg.norm(truth, axis=1) - 1) < 0.05
     lights = lights / np.linalg.norm(lights, axis=1, keepdims=True)
     row = {"scene": folder.name, "lights": len(names), "pixels": int(valid.sum())}
-    for name, trim in (("flat", None), ("plain", None), ("trimmed", TRIM)):
-        estimate = (np.broadcast_to([0.0, 0.0, 1.0], (int(valid.sum()), 3)) if name == "flat"
-                    else photometric_stereo(images[:, valid], lights, trim))
+    for name, trim in (("flat", None), ("plain", None), ("trimmed", TRIM), ("surface", None)):
+        if name == "flat":
+            estimate = np.broadcast_to([0.0, 0.0, 1.0], (int(valid.sum()), 3))
+        elif name == "surface":
+            estimate = surface_normals(rgb, lights)[valid]
+        else:
+            estimate = photometric_stereo(images[:, valid], lights, trim)
         err = angles(estimate, truth[valid])
         row[f"{name}_mean_deg"], row[f"{name}_median_deg"] = float(err.mean()), float(
             np.median(err))
@@ -95,7 +110,7 @@ def main() -> None:
         "command": "python bench/normals_baseline.py", "trim": TRIM,
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count()}, "rows": rows},
         indent=1))
-    kinds = ("flat", "plain", "trimmed")
+    kinds = KINDS
     print("| scene | " + " | ".join(f"{k} mean / median" for k in kinds) + " |\n| --- |"
           + " --- |" * len(kinds))
     for r in rows:
