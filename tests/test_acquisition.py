@@ -48,6 +48,8 @@ def test_optional_keys(edit_json):
     acq = load_acquisition(edit_json(time_offset=0.25, view_plane={"p": [-1, 1], "q": [0, 2]}))
     assert acq.time_offset == 0.25
     assert acq.view_plane == {"p": [-1.0, 1.0], "q": [0.0, 2.0]}
+    acq = load_acquisition(edit_json(object={"x": [-0.5, 0.5], "y": [-0.25, 0.25]}))
+    assert acq.object_extent == {"x": [-0.5, 0.5], "y": [-0.25, 0.25]}
 
 
 def test_missing_folder(tmp_path):
@@ -149,10 +151,20 @@ def test_bad_time_offset(edit_json, offset):
         load_acquisition(edit_json(time_offset=offset))
 
 
-@pytest.mark.parametrize("view", [{"p": [0, 1]}, {"p": [1, 0], "q": [0, 1]}, "x"])
+@pytest.mark.parametrize("view", [{"p": [0, 1]}, {"p": [1, 0], "q": [0, 1]}, "x",
+                                  {"p": [0, 10**400], "q": [0, 1]}])
 def test_bad_view_plane(edit_json, view):
     with pytest.raises(LtmError, match="view_plane .* must look like"):
         load_acquisition(edit_json(view_plane=view))
+
+
+@pytest.mark.parametrize("extent", [{"x": [0, 1]}, {"x": [1, 0], "y": [0, 1]},
+                                    {"x": [0, 1], "y": [0, float("inf")]},
+                                    {"x": [0, "1"], "y": [0, 1]}, {"x": [0, 10**400], "y": [0, 1]},
+                                    {"x": [-1e308, 1e308], "y": [0, 1]}, [0, 1]])
+def test_bad_object_extent(edit_json, extent):
+    with pytest.raises(LtmError, match="object .* must look like"):
+        load_acquisition(edit_json(object=extent))
 
 
 # --- poses -----------------------------------------------------------------------------------

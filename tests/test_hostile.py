@@ -80,7 +80,9 @@ META = st.fixed_dictionaries({}, optional={
     "transfer": st.one_of(st.sampled_from(["srgb", "linear", "SRGB"]), JSON_ANY),
     "time_offset": st.one_of(NUMBERS, JSON_ANY),
     "view_plane": st.one_of(st.none(), st.fixed_dictionaries({"p": RANGES, "q": RANGES}),
-                            JSON_ANY)})
+                            JSON_ANY),
+    "object": st.one_of(st.none(), st.fixed_dictionaries({"x": RANGES, "y": RANGES}),
+                        JSON_ANY)})
 VALID_META = {"format": "ltm-acquisition/1", "video": "video.mkv", "poses": "poses.csv",
               "plane": {"r": [-0.2, 0.2], "s": [-0.2, 0.2], "height": 0.3}, "transfer": "srgb"}
 JSON_FILES = st.one_of(
@@ -129,6 +131,8 @@ def test_acquisition_json(base):
             assert result.transfer in TRANSFERS and math.isfinite(result.time_offset)
             plane = result.plane
             assert 0 < plane.area < math.inf and 0 < plane.height < math.inf
+            for lo, hi in (result.object_extent or {}).values():
+                assert 0 < hi - lo < math.inf
         assert tree_digest(base / "json") == before
 
     case()

@@ -130,7 +130,10 @@ def test_regularisation_and_confidence_are_chosen_and_stored(flow_run):
     assert ds["unsupported"].dims == ("y", "x") and ds["unsupported"].dtype == bool
     error = ds["expected_error"].values
     assert np.isfinite(error).all() and 0 <= error.min()
-    assert 0.03 < np.median(error) < 0.05  # measured 0.040
+    # the simulation declares the object's extent, so the near-light surface model competes;
+    # it wins the relief's tile (truth SNR_Y 30.1 dB against rbf's 22.3 without the extent)
+    assert rec["methods_per_tile"] == {"physical": tiles}
+    assert 0.025 < np.median(error) < 0.035  # measured 0.030 (rbf's: 0.037)
 
 
 def test_ltm_evaluate_reports_heldout_and_truth(flow_run, small_acquisition, tmp_path):

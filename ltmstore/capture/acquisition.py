@@ -13,6 +13,7 @@ import json
 import math
 import os
 import re
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,6 +53,10 @@ class Acquisition:
         Seconds added to the pose times to put them on the video's clock.
     view_plane : dict or None
         ``{"p": [min, max], "q": [min, max]}`` for 6D acquisitions.
+    object_extent : dict or None
+        ``{"x": [left, right], "y": [bottom, top]}``: the object-plane rectangle the (rectified)
+        video frame shows, plane units (key ``object``). It places every pixel under the near
+        light, which the physical reflectance model (``--method physical``) needs.
     raw : dict
         The parsed ``acquisition.json``.
     """
@@ -63,6 +68,7 @@ class Acquisition:
     transfer: str
     time_offset: float = 0.0
     view_plane: dict | None = None
+    object_extent: dict | None = None
     raw: dict = field(default_factory=dict, compare=False, repr=False)
 
     def sha256(self) -> dict[str, str]:
@@ -212,6 +218,7 @@ def load_acquisition(folder: str | os.PathLike) -> Acquisition:
         transfer=meta["transfer"],
         time_offset=_time_offset(meta.get("time_offset", 0.0), where),
         view_plane=_view_plane(meta.get("view_plane"), where),
+        object_extent=_object_extent(meta.get("object"), where),
         raw=meta,
     )
 
@@ -263,8 +270,9 @@ def _plane(value: object, where: str) -> Plane:
 
 
 def _is_number(value: object) -> bool:
-    """A JSON number (not a boolean, not a string)."""
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    """A JSON number (not a boolean, not a string) that fits a double (``10**400`` does not)."""
+    return (isinstance(value, int | float) and not isinstance(value, bool)
+            and abs(value) <= sys.float_info.max)
 
 
 def _is_range(value: object) -> bool:
@@ -290,6 +298,18 @@ def _view_plane(value: object, where: str) -> dict | None:
         raise LtmError(f"{where}: view_plane {value!r} must look like "
                        "{'p': [min, max], 'q': [min, max]} with finite min < max")
     return ranges
+
+
+def _object_extent(value: object, where: str) -> dict | None:
+    if value is None:
+        return None
+    keys = ("x", "y")
+    if not (isinstance(value, dict) and set(value) == set(keys)
+            and all(_is_range(value[k]) for k in keys)
+            and all(0 < float(value[k][1]) - float(value[k][0]) < math.inf for k in keys)):
+        raise LtmError(f"{where}: object {value!r} must look like "
+                       "{'x': [left, right], 'y': [bottom, top]} with min < max, a finite width")
+    return {k: [float(value[k][0]), float(value[k][1])] for k in keys}
 
 
 def load_poses(path: str | os.PathLike, *, min_samples: int = MIN_POSES) -> Poses:

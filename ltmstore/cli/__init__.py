@@ -2,7 +2,7 @@
 
 One module per command group, each with a ``register(sub)`` that adds its commands:
 :mod:`~ltmstore.cli.pipeline` (demo, simulate, ingest, reconstruct, relight, evaluate, bench,
-info), :mod:`~ltmstore.cli.check`, :mod:`~ltmstore.cli.share` (export),
+info), :mod:`~ltmstore.cli.check`, :mod:`~ltmstore.cli.share` (export, maps, view),
 :mod:`~ltmstore.cli.capture` (board, calibrate, track, sync) and :mod:`~ltmstore.cli.archive`.
 The CLI sits on top: it may import every part of the package, and ``flows`` for the Prefect-run
 commands.

@@ -1,8 +1,10 @@
-"""``ltm`` commands that share a store with other tools and people: export, view."""
+"""``ltm`` commands that share a store with other tools and people: export, maps, view."""
 
 from __future__ import annotations
 
 import argparse
+
+from ltmstore.cli.args import number, numbers
 
 
 def register(sub) -> None:
@@ -31,6 +33,7 @@ def register(sub) -> None:
                    help="relight: JPEG quality of the planes (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_export)
+    register_maps(sub)
     register_view(sub)
 
 
@@ -42,6 +45,46 @@ def cmd_export(a: argparse.Namespace) -> None:
     print(f"wrote {r['path']} ({r['format']}, {r['basis']} basis, {r['terms']} terms, "
           f"{r['width']}x{r['height']} px, fitted at {r['directions']} light directions; "
           f"white = {r['white']:.4g} linear)")
+
+
+def register_maps(sub) -> None:
+    """Add ``ltm maps`` to the ``ltm`` subparsers ``sub``."""
+    p = sub.add_parser("maps", help="the surface model's normal, albedo, specular and roughness "
+                       "maps as PNG; relit with the material changed",
+                       description="Write the surface maps of a far-light store reconstructed "
+                       "with the surface model (ltm ingest-rti, then ltm reconstruct --method "
+                       "physical) into a new folder: normal.png (16-bit RGB, (n + 1) / 2 with "
+                       "R = x right, G = y up, B = z towards the camera), albedo.png and "
+                       "specular.png (8-bit sRGB, the 99.5th percentile white), roughness.png "
+                       "(8-bit grey, GGX alpha). With --direction, also material_000.png, ... : "
+                       "the model relit at each direction with the diffuse albedo and the "
+                       "specular lobe scaled (RTI viewers' specular enhancement), at the "
+                       "albedo map's exposure.")
+    p.add_argument("store")
+    p.add_argument("output", metavar="OUT_DIR", help="folder to create")
+    p.add_argument("--direction", type=numbers("LX,LY,LZ", "a direction"), action="append",
+                   metavar="LX,LY,LZ", help="direction towards the light (normalised; lz > 0) "
+                   "of a material image, as in ltm relight; repeat to add lights")
+    p.add_argument("--diffuse", type=number, default=None, metavar="D",
+                   help="scale of the diffuse albedo in the material images (default: 1)")
+    p.add_argument("--specular", type=number, default=None, metavar="S",
+                   help="scale of the specular lobe in the material images: 0 diffuse only, "
+                   "3 enhanced (default: 1)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing OUT_DIR")
+    p.set_defaults(func=cmd_maps)
+
+
+def cmd_maps(a: argparse.Namespace) -> None:
+    from ltmstore.core.errors import LtmError
+    from ltmstore.share.maps import maps
+
+    if a.direction is None and (a.diffuse, a.specular) != (None, None):
+        raise LtmError("--diffuse and --specular scale the material images: add --direction "
+                       "LX,LY,LZ")
+    r = maps(a.store, a.output, directions=a.direction,
+             diffuse=1.0 if a.diffuse is None else a.diffuse,
+             specular=1.0 if a.specular is None else a.specular, overwrite=a.overwrite)
+    print(f"wrote {r['path']} ({', '.join(r['files'])}; {r['width']}x{r['height']} px)")
 
 
 def register_view(sub) -> None:

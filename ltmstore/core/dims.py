@@ -114,6 +114,19 @@ class Plane:
             ) from exc
 
 
+def object_pixels(extent: dict, image: tuple[int, int], rows: slice, cols: slice) -> np.ndarray:
+    """Object-plane ``(X, Y)`` of the pixel centres ``rows x cols`` of an ``image (H, W)`` that
+    shows ``extent = {"x": [left, right], "y": [bottom, top]}`` (``acquisition.json``'s
+    ``object``, plane units): ``(n, 2)`` in C order of ``(y, x)``. Pixel ``(0, 0)`` is the top
+    left corner; ``Y`` grows upwards as ``s`` does."""
+    (left, right), (bottom, top) = extent["x"], extent["y"]
+    h, w = image
+    x = left + (np.arange(w)[cols] + 0.5) * (right - left) / w
+    y = top - (np.arange(h)[rows] + 0.5) * (top - bottom) / h
+    xx, yy = np.meshgrid(x, y)
+    return np.column_stack([xx.ravel(), yy.ravel()])
+
+
 @dataclass(frozen=True)
 class Lattice:
     """A regular lattice of ``shape`` equal cells over a plane rectangle.

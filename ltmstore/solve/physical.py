@@ -123,7 +123,7 @@ def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
     return Lights(toward, half, toward[2] ** led_exponent / dist2)
 
 
-def _normal(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+def unit_normal(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Unit normals ``(n, 3)`` of the slopes ``(p, q)`` (``n ~ (-p, -q, 1)``)."""
     return np.stack([-p, -q, np.ones_like(p)], axis=-1) / np.sqrt(1 + p * p + q * q)[:, None]
 
@@ -328,7 +328,7 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     if share:
         best = _share_roughness(best, evidence, lights, w)
         evidence = _evidence(best, lights_all, observed_all)
-    normal = _normal(best[:, 0], best[:, 1])
+    normal = unit_normal(best[:, 0], best[:, 1])
     surface = Surface(normal=normal, albedo=best[:, 2], specular=best[:, 3],
                       roughness=np.exp(best[:, 4]), ambient=best[:, 5], evidence=evidence)
     return surface, _model(best, lights_all)

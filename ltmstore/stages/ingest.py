@@ -182,6 +182,8 @@ def _provenance(acq: Acquisition, hashes: dict, video: VideoReader, sink: FrameS
             "poses": acq.raw["poses"], "sha256": hashes, "plane": acq.plane.to_json(),
             "transfer": acq.transfer, "time_offset": acq.time_offset, "fps": video.fps,
             "frame_size": list(sink.shape)}
+    if acq.object_extent is not None:
+        meta["object"] = acq.object_extent
     if acq.view_plane is not None:
         meta["view_plane"] = {**acq.view_plane, **(rig.to_json() if rig is not None else {})}
     return meta

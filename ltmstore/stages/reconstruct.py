@@ -33,6 +33,7 @@ from ltmstore.core.dims import (
     UNSUPPORTED,
     Lattice,
     Plane,
+    object_pixels,
 )
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
@@ -77,8 +78,10 @@ def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray
 
 
 def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str, params: dict,
-                geometry: Geometry, auto: bool, block_info=None) -> np.ndarray:
-    """Solve one pixel tile and write its ``ltm`` shard and confidence maps.
+                geometry: Geometry, auto: bool, extent: dict | None = None,
+                block_info=None) -> np.ndarray:
+    """Solve one pixel tile and write its ``ltm`` shard and confidence maps; ``extent`` (the
+    acquisition's ``object``) places the tile's pixels on the object plane.
 
     Returns ``[[record]]``: seconds, the parameters used and the held-out errors behind them.
     """
@@ -88,6 +91,10 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
     batch = samples.reshape(-1, *samples.shape[2:])
     seed = y0 * 65536 + x0
+    if extent is not None:
+        image = block_info[0]["shape"][:2]
+        geometry = geometry.with_pixels(object_pixels(extent, image, slice(y0, y1),
+                                                      slice(x0, x1)))
     label, method_error = method, None
     if method == AUTO:  # the method and model size first, then its regularisation
         picked = choose_method(batch, geometry, seed=seed)
@@ -383,13 +390,18 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     start = time.perf_counter()
     out = {LTM: group[LTM], EXPECTED_ERROR: group[EXPECTED_ERROR],
            UNSUPPORTED: group[UNSUPPORTED], TILES: group[tiles_name(LTM)]}
-    solve = partial(_solve_tiles, plan=plan, geometry=geometry, method=method, params=params,
-                    client=client, progress=progress)
-    records, solved = solve(group[SAMPLES], out, auto=auto)
+    solve = partial(_solve_tiles, plan=plan, geometry=geometry, params=params, client=client,
+                    progress=progress)
+    extent = group.attrs["acquisition"].get("object")
+    records, solved = solve(group[SAMPLES], out, method=method, auto=auto, extent=extent)
     record_method_map(group, records, plan, method)
-    for c in CHROMA_CHANNELS if color else ():  # the colour LTM: same method, default params
+    # The colour LTM: the same method, default parameters; signed chroma is no reflectance, so
+    # the physical model's chroma is the RBF interpolation of its residual smoother.
+    chroma_method = "rbf" if method == "physical" else method
+    for c in CHROMA_CHANNELS if color else ():
         chroma_out = {LTM: group[CHROMA_LTM[c]], TILES: group[tiles_name(CHROMA_LTM[c])]}
-        solved += solve(group[CHROMA_SAMPLES[c]], chroma_out, auto=False)[1]
+        solved += solve(group[CHROMA_SAMPLES[c]], chroma_out, method=chroma_method,
+                        auto=False, extent=None)[1]
     timings["solve_s"] = time.perf_counter() - start
     passes = 1 + len(CHROMA_CHANNELS) * bool(color)
     info = {**sampling, "method": method, "params": params, "auto": auto, "color": color,
@@ -467,7 +479,7 @@ def _mean_heldout(records: list[dict]) -> float | None:
 
 def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TilePlan,
                  geometry: Geometry, method: str, params: dict, auto: bool, client: Client,
-                 progress: bool) -> tuple[list[dict], int]:
+                 progress: bool, extent: dict | None) -> tuple[list[dict], int]:
     """Run one Dask task per pixel tile not yet marked done in ``out[TILES]``.
 
     Returns every tile's record (earlier runs' from their marks) and how many were solved now.
@@ -478,7 +490,7 @@ def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TileP
     marks = _read_marks(out[TILES])
     tiles = da.from_zarr(samples, chunks=plan.block)
     records = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
-                               geometry=geometry, auto=auto,
+                               geometry=geometry, auto=auto, extent=extent,
                                drop_axis=list(range(2, tiles.ndim)), chunks=(1, 1), dtype=object)
     todo = marks == ""
     futures = client.compute(list(records.to_delayed()[todo]))

@@ -103,6 +103,9 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
     st.begin_stage(group, "resample")
     st.complete_stage(group, "resample", {"lattice": lat.to_json(), "light_kind": FAR})
     st.begin_stage(group, "reconstruct", {"run": key})
+    for name in st.STAGE_VARIABLES["reconstruct"]:  # an earlier run's, e.g. surface maps
+        if name in group:
+            del group[name]
     for name, values in lat.coords().items():
         st.write_coord(group, name, values, **coordinate_attrs(FAR)[name])
     ltm = st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
@@ -184,16 +187,17 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     start = time.perf_counter()
     rgb = sf.frames_rgb(group, valid)
     flat = rgb.reshape(len(rgb), -1, 3)
-    sample = np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS]
-    scores = sf.cross_validated(flat[:, np.sort(sample)], train, classic)
-    timings["surface_choice_s"] = time.perf_counter() - start
-    timings["surface_heldout_mse"] = {"surface": scores[0], classic.name: scores[1]}
-    if method == "auto" and scores[0] >= scores[1]:
-        return None
+    sample = np.sort(np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS])
+    if method == "auto":
+        scores = sf.cross_validated(flat[:, sample], train, classic)
+        timings["surface_choice_s"] = time.perf_counter() - start
+        timings["surface_heldout_mse"] = {"surface": scores[0], classic.name: scores[1]}
+        if scores[0] >= scores[1]:
+            return None
     theta = sf.fit_image(rgb, train, workers=min(2, os.cpu_count() or 1))
     sf.write_surface(group, theta)
-    encoded = linear_to_srgb((flat[:, np.sort(sample)] @ LUMA).astype(np.float32))
-    smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[np.sort(sample)], train)
+    encoded = linear_to_srgb((flat[:, sample] @ LUMA).astype(np.float32))
+    smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train)
     timings["surface_s"] = time.perf_counter() - start
     return theta, smoother
 

@@ -41,6 +41,7 @@ SURFACE = (NORMAL, ALBEDO, SPECULAR, ROUGHNESS, AMBIENT)
 PREFIX = "physical+"  # method names of the model plus its residual smoother: physical+rbf:W:S
 FOLDS = 4  # lights held out in turn when the model is scored against the classic one
 CHOICE_PIXELS = 4096  # pixels of the image that score it
+MAP_CHUNK = 512  # rows and columns of a map's chunks
 BLOCK = 4096  # pixels fitted at once (memory: a few (BLOCK, lights, 6) arrays)
 
 
@@ -121,7 +122,7 @@ def cross_validated(rgb: np.ndarray, train: np.ndarray, classic: Model, *,
 def write_surface(group: zarr.Group, theta: np.ndarray) -> None:
     """The store variables of the surface (see the module) from ``theta (y, x, 3, 6)``."""
     image = theta.shape[:2]
-    normal = physical._normal(theta[..., 0, 0].ravel(), theta[..., 0, 1].ravel())
+    normal = physical.unit_normal(theta[..., 0, 0].ravel(), theta[..., 0, 1].ravel())
     values = {NORMAL: ((COMPONENT,), normal.reshape(*image, 3)),
               ALBEDO: ((COLOR,), theta[..., 2]), SPECULAR: ((COLOR,), theta[..., 3]),
               ROUGHNESS: ((), np.exp(theta[..., 0, 4])), AMBIENT: ((COLOR,), theta[..., 5])}
@@ -129,7 +130,8 @@ def write_surface(group: zarr.Group, theta: np.ndarray) -> None:
     if COLOR not in group:
         st.write_coord(group, COLOR, np.array(COLOR_CHANNELS))
     for name, (extra, data) in values.items():
-        arr = st.create_variable(group, name, ("y", "x", *extra), data.shape, chunks=data.shape)
+        chunks = (*(min(n, MAP_CHUNK) for n in image), *data.shape[2:])
+        arr = st.create_variable(group, name, ("y", "x", *extra), data.shape, chunks=chunks)
         arr[...] = data.astype(np.float32)
 
 

@@ -4,7 +4,7 @@ A run is planned first (:func:`plan_simulation`: scene, plane, lattice, true tra
 record, video timing; all seeded), then executed (:func:`simulate_acquisition`), which writes an
 acquisition folder (ARCHITECTURE.md section 3.1) plus the ground truth ``truth.zarr``::
 
-    OUT/acquisition.json   transfer "srgb", plus {"simulation": {...}}
+    OUT/acquisition.json   transfer "srgb", the object's extent "object", {"simulation": {...}}
     OUT/video.mkv          FFV1 lossless (video.mp4, mp4v, with ``lossy``), 30 fps, sRGB uint8
     OUT/poses.csv          the tracker's irregular, noisy reports; t = 0 at the first frame
     OUT/truth.zarr         ltm (y, x, r, s) linear luminance and ltm_rgb (y, x, r, s, color)
@@ -289,7 +289,9 @@ def _execute(plan: SimulationPlan, folder: Path, *, lossy: bool, truth: bool,
     writer.write_poses(folder / "poses.csv", tk.t - plan.video_start, tk.r, tk.s, tk.z, tk.p,
                        tk.q)
     info = _simulation_info(plan, exposure, km)
-    extra = {"simulation": info}
+    h, w = plan.scene.shape
+    half = (w * plan.scene.pixel_size / 2, h * plan.scene.pixel_size / 2)
+    extra = {"object": {"x": [-half[0], half[0]], "y": [-half[1], half[1]]}, "simulation": info}
     if plan.view_plane is not None:
         info.update(view_lattice=list(plan.lattice.shape[2:]),
                     view_speed_note="camera B scribbles over view_plane, looking at the "

@@ -1,0 +1,169 @@
+"""``ltm maps``: the surface model of a far-light store as images, and relit with its material
+changed.
+
+A far-light store reconstructed with the surface model (:mod:`ltmstore.stages.surface`) holds a
+normal, an albedo, a specular lobe and a roughness per pixel. :func:`write_maps` writes them as
+PNG files the photometric-stereo and RTI world reads: ``normal.png`` (16-bit RGB, ``(n / 2 +
+1 / 2) * 65535`` with R = x right, G = y up, B = z towards the camera: SynthRTI's encoding),
+``albedo.png`` and ``specular.png`` (8-bit sRGB, each scaled so that its 99.5th percentile is
+white) and ``roughness.png`` (8-bit grey, GGX alpha in ``[0, 1]``).
+
+:func:`render_material` relights the model alone (no residual: exactly what the maps say) with
+the diffuse albedo and the lobe scaled, like the "specular enhancement" and "diffuse gain" modes
+of RTI viewers: ``specular=0`` shows the diffuse shading only, ``specular=3`` exaggerates the
+highlights that reveal the surface's relief and finish.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ltmstore.core.errors import LtmError
+from ltmstore.core.transfer import linear_to_srgb
+from ltmstore.share.atomic import atomic_output, check_output
+from ltmstore.solve import physical
+from ltmstore.stages import surface as sf
+
+WHITE_PERCENTILE = 99.5
+MATERIAL = "material_{:03d}.png"
+
+
+def require_surface(ds, store: str | os.PathLike | None = None) -> None:
+    """Refuse a store (an xarray Dataset; ``store``: its path, for the message) without the
+    surface model's maps."""
+    if any(name not in ds for name in sf.SURFACE):
+        store = ds.encoding.get("source", "?") if store is None else store
+        raise LtmError(f"store {str(store)!r} holds no surface maps (normal, albedo, specular, "
+                       "roughness): reconstruct a far-light store (ltm ingest-rti) with `ltm "
+                       "reconstruct --method physical` (or auto, where the model wins)")
+
+
+def check_material(directions: np.ndarray | None, diffuse: float, specular: float
+                   ) -> np.ndarray | None:
+    """The unit light directions ``(n, 3)`` (or None), refusing negative or non-finite scales
+    and directions at or below the horizon."""
+    for name, value in (("diffuse", diffuse), ("specular", specular)):
+        if not (np.isfinite(value) and value >= 0):
+            raise LtmError(f"--{name} {value!r} must be a finite scale >= 0")
+    if directions is None:
+        return None
+    dirs = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    for d in dirs:
+        if not (np.isfinite(d).all() and d[2] > 0):
+            raise LtmError(f"light direction {','.join(f'{v:g}' for v in d)} must be finite "
+                           "and above the horizon (lz > 0)")
+    return dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+
+
+def _display(linear: np.ndarray) -> np.ndarray:
+    """8-bit sRGB of ``linear``, scaled so that its 99.5th percentile is white."""
+    white = max(float(np.percentile(linear, WHITE_PERCENTILE)), 1e-12)
+    return np.round(linear_to_srgb(linear / white) * 255).astype(np.uint8)
+
+
+def _write_png(path: Path, rgb_or_grey: np.ndarray) -> Path:
+    import cv2
+
+    image = rgb_or_grey[..., ::-1] if rgb_or_grey.ndim == 3 else rgb_or_grey  # cv2 is BGR
+    if not cv2.imwrite(str(path), np.ascontiguousarray(image)):
+        raise LtmError(f"cannot write image {str(path)!r}")
+    return path
+
+
+def write_maps(ds, out_dir: str | os.PathLike) -> dict[str, Path]:
+    """Write the surface maps of a store as PNG files in ``out_dir`` (created if missing).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A store (:func:`ltmstore.core.store.open_store`) holding the surface model.
+    out_dir : path-like
+        Folder of the images.
+
+    Returns
+    -------
+    dict
+        The path of each map: ``normal`` (16-bit RGB), ``albedo``, ``specular`` (8-bit sRGB)
+        and ``roughness`` (8-bit grey).
+    """
+    require_surface(ds)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    normal = ds[sf.NORMAL].values.astype(np.float64)
+    images = {"normal": np.round((normal * 0.5 + 0.5).clip(0, 1) * 65535).astype(np.uint16),
+              "albedo": _display(ds[sf.ALBEDO].values),
+              "specular": _display(ds[sf.SPECULAR].values),
+              "roughness": np.round(ds[sf.ROUGHNESS].values.clip(0, 1) * 255).astype(np.uint8)}
+    return {name: _write_png(out / f"{name}.png", image) for name, image in images.items()}
+
+
+def render_material(ds, directions: np.ndarray | Sequence[Sequence[float]], *,
+                    diffuse: float = 1.0, specular: float = 1.0) -> np.ndarray:
+    """The surface model of a store relit at ``directions`` with its material changed.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A store holding the surface model.
+    directions : array_like, shape (n, 3)
+        Directions towards the lights (``x`` right, ``y`` up, ``z`` towards the camera; ``lz >
+        0``), normalised here.
+    diffuse : float
+        Scale of the diffuse albedo.
+    specular : float
+        Scale of the lobe's strength: 0 diffuse only, 1 as fitted, above 1 specular enhancement.
+
+    Returns
+    -------
+    ndarray of float32, shape (n, y, x, 3)
+        Linear RGB in the photographs' units (the ambient floor is kept).
+    """
+    require_surface(ds)
+    dirs = check_material(directions, diffuse, specular)
+    theta = sf.read_surface(ds)
+    h, w = theta.shape[:2]
+    theta[..., 2] *= diffuse
+    theta[..., 3] *= specular
+    flat = theta.reshape(-1, 3, 6)
+    rgb = physical.render_colour(flat, physical.far_lights(dirs, len(flat)))  # (p, n, 3)
+    return np.moveaxis(rgb, 1, 0).reshape(len(dirs), h, w, 3).clip(min=0).astype(np.float32)
+
+
+def write_material(ds, out_dir: str | os.PathLike, directions: np.ndarray, *,
+                   diffuse: float = 1.0, specular: float = 1.0) -> list[Path]:
+    """Write :func:`render_material` images as 8-bit sRGB ``material_000.png``, ... in
+    ``out_dir``, at one exposure: the albedo map's white (a surface facing the light with the
+    99.5th-percentile albedo is white), so that scaling the material shows."""
+    images = render_material(ds, directions, diffuse=diffuse, specular=specular)
+    white = max(float(np.percentile(ds[sf.ALBEDO].values, WHITE_PERCENTILE)), 1e-12)
+    codes = np.round(linear_to_srgb(images / white) * 255).astype(np.uint8)
+    return [_write_png(Path(out_dir) / MATERIAL.format(i), c) for i, c in enumerate(codes)]
+
+
+def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
+         directions: np.ndarray | None = None, diffuse: float = 1.0, specular: float = 1.0,
+         overwrite: bool = False) -> dict:
+    """``ltm maps``: the surface maps of ``store`` and, with ``directions``, its relit images
+    with the material changed, in a new folder ``out_dir`` written atomically.
+
+    Returns
+    -------
+    dict
+        ``path``, the ``files`` written (names), ``width`` and ``height``.
+    """
+    from ltmstore.core.store import open_store
+
+    check_material(directions, diffuse, specular)
+    check_output(out_dir, overwrite)
+    ds = open_store(store)
+    require_surface(ds, store)
+    with atomic_output(out_dir, overwrite=overwrite, folder=True) as tmp:
+        files = list(write_maps(ds, tmp).values())
+        if directions is not None:
+            files += write_material(ds, tmp, directions, diffuse=diffuse, specular=specular)
+    return {"path": os.fspath(out_dir), "files": [f.name for f in files],
+            "width": ds.sizes["x"], "height": ds.sizes["y"]}
