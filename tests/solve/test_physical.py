@@ -26,7 +26,8 @@ def regimes():
 
 def test_the_jacobian_is_the_derivative_of_the_model(regimes):
     geometry = regimes["benign"].geometry.take(np.arange(5))
-    lights = physical.near_lights(geometry, led_exponent=1.5)
+    near = physical.near_lights(geometry, led_exponent=1.5)  # float32; checked in float64
+    lights = physical.Lights(*(a.astype(np.float64) for a in (near.toward, near.half, near.g)))
     rng = np.random.default_rng(1)
     theta = np.column_stack([rng.normal(0, 0.3, 5), rng.normal(0, 0.3, 5),
                              rng.uniform(0.1, 1, 5), rng.uniform(0.01, 0.1, 5),
