@@ -267,12 +267,13 @@ def fit_parameters(y: np.ndarray, w: np.ndarray, lights: Lights, *, n_iter: int 
 def far_lights(directions: np.ndarray, n: int) -> Lights:
     """Distant lights at unit ``directions (M, 3)``, the same for all ``n`` pixels (no
     fall-off): a classic RTI capture."""
-    toward = np.ascontiguousarray(np.asarray(directions, dtype=np.float64).T)
-    half = toward + np.array([0.0, 0.0, 1.0])[:, None]
+    toward = np.ascontiguousarray(np.asarray(directions, dtype=np.float32).T)
+    half = toward.copy()
+    half[2] += 1
     half /= np.sqrt((half**2).sum(axis=0))
     shape = (3, n, toward.shape[1])
     return Lights(np.broadcast_to(toward[:, None], shape), np.broadcast_to(half[:, None], shape),
-                  np.ones(shape[1:]))
+                  np.ones(shape[1:], dtype=np.float32))
 
 
 def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.ndarray:

@@ -54,7 +54,7 @@ def frames_rgb(group: zarr.Group, valid: np.ndarray) -> np.ndarray:
 
 def fit_pixels(rgb: np.ndarray, train: np.ndarray) -> np.ndarray:
     """Per-channel parameters ``(p, 3, 6)`` of the pixels ``rgb (t, p, 3)`` (linear)."""
-    values = np.moveaxis(rgb, 0, 1).astype(np.float64)
+    values = np.moveaxis(rgb, 0, 1).astype(np.float32)
     return physical.fit_colour(values, physical.far_lights(train, len(values)))
 
 
