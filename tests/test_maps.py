@@ -183,3 +183,23 @@ def test_a_later_reconstruct_without_the_model_removes_its_maps(stores, tmp_path
     ds = open_store(copy)
     assert not any(name in ds for name in SURFACE)
     assert ds.attrs["stages"]["reconstruct"]["methods_per_tile"] == {"ptm": 1}
+
+
+def test_auto_takes_the_model_only_by_a_margin(stores, tmp_path, monkeypatch):
+    """``auto`` keeps the classic fit unless the surface model lowers its held-out MSE by
+    ``surface.MARGIN``: on this capture it does (by 28 %)."""
+    from ltmstore.stages import surface
+
+    lp = stores["physical"].parent / "capture" / "dirs.lp"
+    chosen, default = {}, surface.MARGIN
+    for margin in (default, 0.999):
+        monkeypatch.setattr(surface, "MARGIN", margin)
+        store = tmp_path / f"auto-{margin}.zarr"
+        ingest_rti(lp, store, progress=False)
+        info = reconstruct(store, progress=False)
+        chosen[margin] = list(info["methods_per_tile"])
+        mse = info["timings"]["surface_heldout_mse"]
+        ratio = mse["surface"] / min(v for k, v in mse.items() if k != "surface")
+        assert 0.62 < ratio < 0.82, mse  # measured 0.72
+    assert chosen[default][0].startswith(surface.PREFIX)
+    assert not chosen[0.999][0].startswith(surface.PREFIX) and len(chosen[0.999]) == 1

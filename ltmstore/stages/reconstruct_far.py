@@ -182,7 +182,8 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
              method: str, timings: dict) -> tuple[np.ndarray, Model] | None:
     """Fit the surface model (:mod:`ltmstore.stages.surface`) to the whole image and write its
     maps, where ``method`` is ``physical`` or where (``auto``) it predicts held-out lights of a
-    sample of the pixels better than ``classic``, the image's choice; its parameters
+    sample of the pixels better than ``classic``, the image's choice, by
+    :data:`~ltmstore.stages.surface.MARGIN`; its parameters
     ``(y, x, 3, 6)`` and residual smoother, or None (the classic models stay)."""
     start = time.perf_counter()
     rgb = sf.frames_rgb(group, valid)
@@ -192,7 +193,7 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
         scores = sf.cross_validated(flat[:, sample], train, classic)
         timings["surface_choice_s"] = time.perf_counter() - start
         timings["surface_heldout_mse"] = {"surface": scores[0], classic.name: scores[1]}
-        if scores[0] >= scores[1]:
+        if scores[0] >= (1 - sf.MARGIN) * scores[1]:
             return None
     theta = sf.fit_image(rgb, train, workers=min(2, os.cpu_count() or 1))
     sf.write_surface(group, theta)
