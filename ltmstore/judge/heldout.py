@@ -12,7 +12,7 @@ from itertools import product
 
 import numpy as np
 
-from ltmstore.core.dims import SAMPLES, Lattice
+from ltmstore.core.dims import SAMPLES, Lattice, object_pixels
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store, stages
 from ltmstore.solve import Geometry
@@ -34,22 +34,30 @@ def store_geometry(ds) -> Geometry:
     return Geometry(lattice=lattice, height=height)
 
 
-def _pick_pixels(arr, max_pixels: int, rng: np.random.Generator) -> np.ndarray:
-    """Up to ``max_pixels`` random pixels ``(n, *lattice)``, read from random whole tiles only."""
+def _pick_pixels(arr, max_pixels: int, rng: np.random.Generator, extent: dict | None = None
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Up to ``max_pixels`` random pixels ``(n, *lattice)``, read from random whole tiles only,
+    and with ``extent`` (the acquisition's ``object``) their object-plane positions ``(n, 2)``."""
     import dask
 
+    starts = [np.cumsum((0, *c)) for c in arr.chunks[:2]]
     tiles = list(product(*(range(len(c)) for c in arr.chunks[:2])))
-    picked, total = [], 0
+    picked, where, total = [], [], 0
     for index in rng.permutation(len(tiles)):
         i, j = tiles[index]
         picked.append(arr.blocks[i, j])
+        if extent is not None:
+            rows, cols = (slice(s[k], s[k + 1]) for s, k in zip(starts, (i, j), strict=True))
+            where.append(object_pixels(extent, arr.shape[:2], rows, cols))
         total += arr.chunks[0][i] * arr.chunks[1][j]
         if total >= max_pixels:
             break
     data = np.concatenate([b.reshape(-1, *arr.shape[2:]) for b in dask.compute(*picked)])
+    pixels = np.concatenate(where) if where else None
     if len(data) > max_pixels:
-        data = data[np.sort(rng.choice(len(data), max_pixels, replace=False))]
-    return data
+        keep = np.sort(rng.choice(len(data), max_pixels, replace=False))
+        data, pixels = data[keep], None if pixels is None else pixels[keep]
+    return data, pixels
 
 
 def heldout_store(store: str | os.PathLike, *, method: str = "cs", folds: int = 5,
@@ -79,9 +87,11 @@ def heldout_store(store: str | os.PathLike, *, method: str = "cs", folds: int = 
     ds = open_store(store)
     if SAMPLES not in ds:
         raise LtmError(f"store {str(store)!r} has no complete samples; run ltm reconstruct first")
-    geometry = store_geometry(ds)
     start = time.perf_counter()
-    samples = _pick_pixels(ds[SAMPLES].data, int(max_pixels), np.random.default_rng([seed, 707]))
+    samples, pixels = _pick_pixels(ds[SAMPLES].data, int(max_pixels),
+                                   np.random.default_rng([seed, 707]),
+                                   ds.attrs["acquisition"].get("object"))
+    geometry = store_geometry(ds).with_pixels(pixels)
     result = heldout_error(samples, geometry, solver, folds=folds, seed=seed, params=params,
                            fraction=fraction, block=block)
     observed = np.isfinite(samples).reshape(len(samples), -1)
