@@ -296,7 +296,7 @@ def test_far_store_exports_at_its_directions(tmp_path):
     """A classic capture's store (far lights, ``r, s`` = ``lx, ly``) is exported at its cells'
     directions: the HSH file relit at 10 directions inside the captured lights agrees with
     ``ltmstore.relight`` there (placing the cells on a plane instead gave 19.37 dB; HSH order 3
-    cannot hold all of the rbf model that relight evaluates)."""
+    cannot hold all of the model that relight evaluates)."""
     from ltmstore.stages.ingest_rti import ingest_rti
     from ltmstore.stages.reconstruct import reconstruct
 
@@ -311,4 +311,5 @@ def test_far_store_exports_at_its_directions(tmp_path):
                             np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
     shown = np.round(255 * linear_to_srgb(
         ltmstore.relight(store, directions=dirs).values / report["white"]))
-    assert psnr(relit(coef, basis(dirs)), shown) > 23.5  # measured 24.85 dB
+    assert psnr(relit(coef, basis(dirs)), shown) > 26.7  # measured 27.20 dB (24.85 before the
+    # surface model: HSH order 3 holds more of its smooth shading than of the rbf model)

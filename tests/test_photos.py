@@ -1,7 +1,9 @@
 """Held-out photographs on the real captures (../shared/data) and on a tiny synthetic one.
 
 The acceptance of issue 17: the default pipeline's mean held-out PSNR is never more than
-0.2 dB below the best of the project's own PTM, HSH2, HSH3 and RBF fits on the same lights.
+0.2 dB below the best of the project's own PTM, HSH2, HSH3 and RBF fits on the same lights. With
+the surface model (issue 15) it is above them, by about what ``bench/heldout_photos.py``
+measured (:data:`MEASURED_GAIN_DB`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,9 @@ SYNTH = "synthrti/single-obj1-material1"
 CAPTURES = {"realrti-item9-coin": {}, "loewenkopf": {}, "realrti-item3-icon": {},
             SYNTH: {"test_lp": SHARED_DATA / SYNTH / "test" / "dirs.lp"}}
 TOLERANCE_DB = 0.2
+# default - best classic fit (dB), python bench/heldout_photos.py, 2026-11-24
+MEASURED_GAIN_DB = {"realrti-item9-coin": 0.89, "loewenkopf": 0.57, "realrti-item3-icon": 2.69,
+                    SYNTH: 0.00}
 
 
 @pytest.mark.parametrize("name", sorted(CAPTURES))
@@ -35,7 +40,7 @@ def test_default_is_never_far_below_the_best_classic_fit(name):
     assert n >= 8 and all(len(r["psnr"]) == n and np.isfinite(r["psnr"]).all()
                           for r in rows.values())
     assert all(0 < r["mean_ssim"] <= 1 for r in rows.values())
-    assert report["default_minus_best_classic_db"] >= -TOLERANCE_DB, report
+    assert report["default_minus_best_classic_db"] >= MEASURED_GAIN_DB[name] - TOLERANCE_DB, report
 
 
 def test_score_is_psnr_and_ssim_of_8_bit_srgb():
