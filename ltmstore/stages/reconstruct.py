@@ -395,8 +395,8 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     extent = group.attrs["acquisition"].get("object")
     records, solved = solve(group[SAMPLES], out, method=method, auto=auto, extent=extent)
     record_method_map(group, records, plan, method)
-    # The colour LTM: the same method, default parameters; signed chroma is no reflectance, so
-    # the physical model's chroma is the RBF interpolation of its residual smoother.
+    # The colour LTM: the same method, default parameters. Signed chroma is no reflectance:
+    # `--method physical` interpolates it with rbf, and auto's chroma passes leave physical out.
     chroma_method = "rbf" if method == "physical" else method
     for c in CHROMA_CHANNELS if color else ():
         chroma_out = {LTM: group[CHROMA_LTM[c]], TILES: group[tiles_name(CHROMA_LTM[c])]}
