@@ -112,3 +112,22 @@ def test_relight_sum_and_negative_directions(small_store, tmp_path):
                    "--sum", "-o", tmp_path / "both.png")
     assert proc.returncode == 0, proc.stderr
     assert [p.name for p in tmp_path.iterdir()] == ["both.png"]
+
+
+def test_physical_needs_the_object_extent(small_store, tmp_path):
+    """A near-light store whose acquisition declares no object extent: --method physical is
+    refused before anything is written (auto simply leaves the model out)."""
+    import shutil
+
+    import zarr
+
+    store = tmp_path / "no-object.zarr"
+    shutil.copytree(small_store, store)
+    group = zarr.open_group(store, mode="r+")
+    acquisition = dict(group.attrs["acquisition"])
+    del acquisition["object"]
+    group.attrs["acquisition"] = acquisition
+    before = hashlib.sha256((store / "ltm" / "zarr.json").read_bytes()).hexdigest()
+    proc = run_ltm("reconstruct", store, "--method", "physical", "--overwrite")
+    one_line_error(proc, "--method physical needs each pixel's place under the near light")
+    assert hashlib.sha256((store / "ltm" / "zarr.json").read_bytes()).hexdigest() == before

@@ -78,8 +78,10 @@ def register(sub) -> None:
                    f"{TARGET_RATIO}")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *sorted(METHODS)],
                    help="solver (default: %(default)s: per pixel tile, the method and model "
-                   "size with the lowest held-out error; lars is the slow per-pixel "
-                   "reference). A far-light store takes auto, ptm, hsh or rbf")
+                   "size with the lowest held-out error, physical among them where "
+                   "acquisition.json declares the object's extent; lars is the slow per-pixel "
+                   "reference). A far-light store takes auto, ptm, hsh, rbf or physical (the "
+                   "surface model and its maps, see ltm maps)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
     p.add_argument("--no-auto", action="store_true",
                    help="keep the method's default regularisation instead of choosing it per "

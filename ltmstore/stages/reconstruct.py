@@ -220,6 +220,11 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                            "--lattice RxS (cells over the disk of directions)")
     elif method != AUTO:
         get_method(method)
+        if method == "physical" and "object" not in group.attrs.get("acquisition", {}):
+            raise LtmError(f"store {str(path)!r}: --method physical needs each pixel's place "
+                           "under the near light; declare the object's extent in "
+                           "acquisition.json ('object': {'x': [left, right], 'y': [bottom, "
+                           "top]}) and ingest again")
     elif params:
         raise LtmError(f"params {params!r} need a named method; auto chooses the method and its "
                        "parameters per tile")
