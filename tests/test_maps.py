@@ -203,3 +203,28 @@ def test_auto_takes_the_model_only_by_a_margin(stores, tmp_path, monkeypatch):
         assert 0.62 < ratio < 0.82, mse  # measured 0.72
     assert chosen[default][0].startswith(surface.PREFIX)
     assert not chosen[0.999][0].startswith(surface.PREFIX) and len(chosen[0.999]) == 1
+
+
+def test_a_near_store_keeps_the_maps_of_its_physical_tiles(small_store, tmp_path, capsys):
+    """The session's small simulated store (auto chose ``physical`` in its tile): unit normals,
+    non-negative albedo and roughness within the fit's bounds, as luminance maps; ``ltm maps``
+    writes them, and refuses material images (they need far lights)."""
+    from ltmstore.solve.physical import ALPHA_RANGE
+
+    ds = open_store(small_store)
+    assert ds.attrs["stages"]["reconstruct"]["methods_per_tile"] == {"physical": 1}
+    assert ds["normal"].dims == ("y", "x", "component") and ds["albedo"].dims == ("y", "x")
+    normal = ds["normal"].values
+    assert np.allclose(np.linalg.norm(normal, axis=-1), 1, atol=1e-5) and (normal[..., 2] > 0).all()
+    assert (ds["albedo"].values >= 0).all() and np.isfinite(ds["specular"].values).all()
+    roughness = ds["roughness"].values
+    assert (ALPHA_RANGE[0] - 1e-6 <= roughness).all() and (roughness <= ALPHA_RANGE[1] + 1e-6).all()
+    out = tmp_path / "near-maps"
+    assert main(["maps", str(small_store), str(out)]) == 0
+    albedo = cv2.imread(str(out / "albedo.png"), cv2.IMREAD_UNCHANGED)
+    assert albedo.shape == normal.shape[:2] and albedo.max() > 200
+    capsys.readouterr()
+    assert main(["maps", str(small_store), str(tmp_path / "m2"), "--direction", "0,0,1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "material images need a far-light store" in err
+    assert not (tmp_path / "m2").exists()

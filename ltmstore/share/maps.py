@@ -6,7 +6,9 @@ normal, an albedo, a specular lobe and a roughness per pixel. :func:`write_maps`
 PNG files the photometric-stereo and RTI world reads: ``normal.png`` (16-bit RGB, ``(n / 2 +
 1 / 2) * 65535`` with R = x right, G = y up, B = z towards the camera: SynthRTI's encoding),
 ``albedo.png`` and ``specular.png`` (8-bit sRGB, each scaled so that its 99.5th percentile is
-white) and ``roughness.png`` (8-bit grey, GGX alpha in ``[0, 1]``).
+white) and ``roughness.png`` (8-bit grey, GGX alpha in ``[0, 1]``). A near-light store whose
+tiles chose ``physical`` holds the same maps in luminance (no ``color`` dimension; NaN, written
+black, where a tile chose another method): its maps are written the same way, grey.
 
 :func:`render_material` relights the model alone (no residual: exactly what the maps say) with
 the diffuse albedo and the lobe scaled, like the "specular enhancement" and "diffuse gain" modes
@@ -22,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ltmstore.core.dims import COLOR
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.share.atomic import atomic_output, check_output
@@ -42,6 +45,15 @@ def require_surface(ds, store: str | os.PathLike | None = None) -> None:
                        "reconstruct --method physical` (or auto, where the model wins)")
 
 
+def require_material(ds) -> None:
+    """Refuse material images of a store whose maps are not a far-light store's colour maps."""
+    require_surface(ds)
+    if COLOR not in ds[sf.ALBEDO].dims:
+        raise LtmError("material images need a far-light store's surface (ltm ingest-rti): a "
+                       "near-light store's maps are luminance, fitted under its near light; "
+                       "drop --direction to write its maps")
+
+
 def check_material(directions: np.ndarray | None, diffuse: float, specular: float
                    ) -> np.ndarray | None:
     """The unit light directions ``(n, 3)`` (or None), refusing negative or non-finite scales
@@ -60,9 +72,10 @@ def check_material(directions: np.ndarray | None, diffuse: float, specular: floa
 
 
 def _display(linear: np.ndarray) -> np.ndarray:
-    """8-bit sRGB of ``linear``, scaled so that its 99.5th percentile is white."""
-    white = max(float(np.percentile(linear, WHITE_PERCENTILE)), 1e-12)
-    return np.round(linear_to_srgb(linear / white) * 255).astype(np.uint8)
+    """8-bit sRGB of ``linear``, scaled so that its 99.5th percentile is white (NaN: black)."""
+    finite = linear[np.isfinite(linear)]
+    white = max(float(np.percentile(finite, WHITE_PERCENTILE)) if finite.size else 0.0, 1e-12)
+    return np.round(linear_to_srgb(np.nan_to_num(linear / white)) * 255).astype(np.uint8)
 
 
 def _write_png(path: Path, rgb_or_grey: np.ndarray) -> Path:
@@ -94,10 +107,12 @@ def write_maps(ds, out_dir: str | os.PathLike) -> dict[str, Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     normal = ds[sf.NORMAL].values.astype(np.float64)
-    images = {"normal": np.round((normal * 0.5 + 0.5).clip(0, 1) * 65535).astype(np.uint16),
+    roughness = np.nan_to_num(ds[sf.ROUGHNESS].values).clip(0, 1)
+    images = {"normal": np.round(np.nan_to_num(normal * 0.5 + 0.5).clip(0, 1) * 65535
+                                 ).astype(np.uint16),
               "albedo": _display(ds[sf.ALBEDO].values),
               "specular": _display(ds[sf.SPECULAR].values),
-              "roughness": np.round(ds[sf.ROUGHNESS].values.clip(0, 1) * 255).astype(np.uint8)}
+              "roughness": np.round(roughness * 255).astype(np.uint8)}
     return {name: _write_png(out / f"{name}.png", image) for name, image in images.items()}
 
 
@@ -122,7 +137,7 @@ def render_material(ds, directions: np.ndarray | Sequence[Sequence[float]], *,
     ndarray of float32, shape (n, y, x, 3)
         Linear RGB in the photographs' units (the ambient floor is kept).
     """
-    require_surface(ds)
+    require_material(ds)
     dirs = check_material(directions, diffuse, specular)
     theta = sf.read_surface(ds)
     h, w = theta.shape[:2]
@@ -161,6 +176,8 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
     check_output(out_dir, overwrite)
     ds = open_store(store)
     require_surface(ds, store)
+    if directions is not None:
+        require_material(ds)
     with atomic_output(out_dir, overwrite=overwrite, folder=True) as tmp:
         files = list(write_maps(ds, tmp).values())
         if directions is not None:

@@ -429,6 +429,14 @@ def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
     -------
     ndarray of float32, same shape as ``samples``.
     """
+    return solve_surface(samples, geometry, led_exponent=led_exponent, share=share,
+                         residual=residual, damp_cells=damp_cells, n_iter=n_iter)[0]
+
+
+def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
+                  share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
+                  n_iter: int = N_ITER) -> tuple[np.ndarray, Surface]:
+    """:func:`solve`, and the fitted :class:`Surface` behind it."""
     if not 0.0 <= residual <= 1.0:
         raise LtmError(f"physical residual weight {residual!r} must lie in [0, 1]")
     if samples.ndim != 3:
@@ -439,11 +447,11 @@ def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
                        f"{len(samples)} pixels")
     if not np.isfinite(samples).any(axis=tuple(range(1, samples.ndim))).all():
         raise LtmError("method 'physical' needs at least one observed cell per pixel")
-    _, model = fit_surface(samples, geometry, led_exponent=led_exponent, n_iter=n_iter,
-                           share=share)
+    surface, model = fit_surface(samples, geometry, led_exponent=led_exponent, n_iter=n_iter,
+                                 share=share)
     out = model
     if residual > 0:
         res = samples.reshape(len(samples), -1) - model
         out = model + residual * damped_residual(res.reshape(samples.shape), geometry,
                                                  damp_cells=damp_cells)
-    return out.reshape(samples.shape).astype(np.float32)
+    return out.reshape(samples.shape).astype(np.float32), surface

@@ -39,6 +39,7 @@ from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.select import AUTO, AUTO_LABELS, Choice, choose_method, choose_params
+from ltmstore.stages import surface as sf
 from ltmstore.stages.by_light import write_by_light
 from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
 from ltmstore.stages.resample import (
@@ -102,8 +103,16 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         method_error = picked.errors.get(label)
     choice = (choose_params(batch, geometry, method, params=params, seed=seed)
               if auto else Choice(params=params, errors={}))
-    estimate = get_method(method)(batch, geometry, **choice.params)
     tile = samples.shape[:2]
+    surface = None
+    if method == "physical" and sf.NORMAL in out:  # the surface's maps as well
+        from ltmstore.solve import physical
+
+        estimate, surface = physical.solve_surface(batch, geometry, **choice.params)
+    else:
+        estimate = get_method(method)(batch, geometry, **choice.params)
+    if sf.NORMAL in out:  # every chunk is written: NaN where the tile chose another method
+        _write_surface_tile(out, surface, (slice(y0, y1), slice(x0, x1)), tile)
     if EXPECTED_ERROR in out:  # the luminance pass also maps the confidence
         estimate = np.maximum(estimate, 0)  # light transport is never negative (Cb, Cr may be)
         out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
@@ -117,6 +126,29 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     result = np.empty((1, 1), dtype=object)
     result[0, 0] = record
     return result
+
+
+def _write_surface_tile(out: dict[str, zarr.Array], surface, where: tuple[slice, slice],
+                        tile: tuple[int, int]) -> None:
+    """A tile's physical surface (:class:`ltmstore.solve.physical.Surface`, or None: NaN) into
+    its maps."""
+    def value(name: str, shape: tuple[int, ...]) -> np.ndarray:
+        return np.full(shape, np.nan) if surface is None else getattr(surface, name).reshape(shape)
+
+    out[sf.NORMAL][where] = value("normal", (*tile, 3))
+    for name in (sf.ALBEDO, sf.SPECULAR, sf.ROUGHNESS, sf.AMBIENT):
+        out[name][where] = value(name, tile)
+
+
+def _create_surface_maps(group: zarr.Group, plan: TilePlan) -> None:
+    """Empty (NaN) near-light surface maps: luminance albedo, lobe strength, roughness and floor
+    ``(y, x)`` and the unit ``normal (y, x, component)``, filled by the tiles that choose the
+    physical model."""
+    st.write_coord(group, sf.COMPONENT, np.array(["x", "y", "z"]))
+    st.create_variable(group, sf.NORMAL, ("y", "x", sf.COMPONENT), (*plan.image, 3),
+                       chunks=(*plan.tile, 3))
+    for name in (sf.ALBEDO, sf.SPECULAR, sf.ROUGHNESS, sf.AMBIENT):
+        st.create_variable(group, name, ("y", "x"), plan.image, chunks=plan.tile)
 
 
 def _write_lattice(group: zarr.Group, binning: Binning) -> None:
@@ -385,6 +417,9 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
     st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image, chunks=plan.tile, dtype=bool,
                        fill_value=True)
+    if method in (AUTO, "physical") and "object" in group.attrs["acquisition"] \
+            and len(lat.shape) == 2:  # 6-D lattices keep cs
+        _create_surface_maps(group, plan)
     return _solve_stage(group, client, **solve_args, timings=timings, resumed=False)
 
 
@@ -394,7 +429,8 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     """Solve every tile not yet marked done (all of them in a fresh run); complete the stage."""
     start = time.perf_counter()
     out = {LTM: group[LTM], EXPECTED_ERROR: group[EXPECTED_ERROR],
-           UNSUPPORTED: group[UNSUPPORTED], TILES: group[tiles_name(LTM)]}
+           UNSUPPORTED: group[UNSUPPORTED], TILES: group[tiles_name(LTM)],
+           **{name: group[name] for name in sf.SURFACE if name in group}}
     solve = partial(_solve_tiles, plan=plan, geometry=geometry, params=params, client=client,
                     progress=progress)
     extent = group.attrs["acquisition"].get("object")
