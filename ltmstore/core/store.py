@@ -299,6 +299,14 @@ def stages(group: zarr.Group) -> dict:
     return dict(group.attrs.get(STAGES_ATTR, {}))
 
 
+def drop_stage_variables(group: zarr.Group, *names: str) -> None:
+    """Delete the arrays an earlier run of the stages ``names`` left (:data:`STAGE_VARIABLES`)."""
+    for stage in names:
+        for name in STAGE_VARIABLES[stage]:
+            if name in group:
+                del group[name]
+
+
 def begin_stage(group: zarr.Group, stage: str, info: dict | None = None) -> None:
     """Mark ``stage`` as started (and not complete) before writing any of its arrays.
 

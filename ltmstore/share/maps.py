@@ -71,11 +71,16 @@ def check_material(directions: np.ndarray | None, diffuse: float, specular: floa
     return dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
 
 
+def _white(linear: np.ndarray) -> float:
+    """The :data:`WHITE_PERCENTILE` percentile of the finite values of ``linear`` (> 0)."""
+    finite = linear[np.isfinite(linear)]
+    return max(float(np.percentile(finite, WHITE_PERCENTILE)) if finite.size else 0.0, 1e-12)
+
+
 def _display(linear: np.ndarray) -> np.ndarray:
     """8-bit sRGB of ``linear``, scaled so that its 99.5th percentile is white (NaN: black)."""
-    finite = linear[np.isfinite(linear)]
-    white = max(float(np.percentile(finite, WHITE_PERCENTILE)) if finite.size else 0.0, 1e-12)
-    return np.round(linear_to_srgb(np.nan_to_num(linear / white)) * 255).astype(np.uint8)
+    return np.round(linear_to_srgb(np.nan_to_num(linear / _white(linear))) * 255
+                    ).astype(np.uint8)
 
 
 def _write_png(path: Path, rgb_or_grey: np.ndarray) -> Path:
@@ -154,8 +159,8 @@ def write_material(ds, out_dir: str | os.PathLike, directions: np.ndarray, *,
     ``out_dir``, at one exposure: the albedo map's white (a surface facing the light with the
     99.5th-percentile albedo is white), so that scaling the material shows."""
     images = render_material(ds, directions, diffuse=diffuse, specular=specular)
-    white = max(float(np.percentile(ds[sf.ALBEDO].values, WHITE_PERCENTILE)), 1e-12)
-    codes = np.round(linear_to_srgb(images / white) * 255).astype(np.uint8)
+    codes = np.round(linear_to_srgb(images / _white(ds[sf.ALBEDO].values)) * 255
+                     ).astype(np.uint8)
     return [_write_png(Path(out_dir) / MATERIAL.format(i), c) for i, c in enumerate(codes)]
 
 

@@ -171,9 +171,9 @@ def _model(theta: np.ndarray, lights: Lights, jacobian: bool = False):
 def _normal_equations(jac: np.ndarray, w: np.ndarray,
                       y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``J^T W J (n, P, P)`` and ``J^T W y (n, P)`` of Jacobians ``(n, P, K)``, batched BLAS."""
-    weighted = jac * w[:, None, :].astype(jac.dtype)
+    weighted = jac * w[:, None, :].astype(jac.dtype, copy=False)
     jtj = (weighted @ jac.transpose(0, 2, 1)).astype(np.float64)
-    return jtj, (weighted @ y[..., None].astype(jac.dtype))[..., 0].astype(np.float64)
+    return jtj, (weighted @ y[..., None].astype(jac.dtype, copy=False))[..., 0].astype(np.float64)
 
 
 def _linear_terms(theta: np.ndarray, lights: Lights, y: np.ndarray,

@@ -132,10 +132,10 @@ def _write_surface_tile(out: dict[str, zarr.Array], surface, where: tuple[slice,
                         tile: tuple[int, int]) -> None:
     """A tile's physical surface (:class:`ltmstore.solve.physical.Surface`, or None: NaN) into
     its maps."""
-    def value(name: str, shape: tuple[int, ...]) -> np.ndarray:
+    def value(name: str, shape: tuple[int, ...]) -> np.ndarray:  # map names = Surface fields
         return np.full(shape, np.nan) if surface is None else getattr(surface, name).reshape(shape)
 
-    out[sf.NORMAL][where] = value("normal", (*tile, 3))
+    out[sf.NORMAL][where] = value(sf.NORMAL, (*tile, 3))
     for name in (sf.ALBEDO, sf.SPECULAR, sf.ROUGHNESS, sf.AMBIENT):
         out[name][where] = value(name, tile)
 
@@ -395,9 +395,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
 
     st.begin_stage(group, "resample")
     st.begin_stage(group, "reconstruct", {"run": key})
-    for name in (*st.STAGE_VARIABLES["resample"], *st.STAGE_VARIABLES["reconstruct"]):
-        if name in group:  # an earlier run's output, possibly on another lattice
-            del group[name]
+    st.drop_stage_variables(group, "resample", "reconstruct")  # possibly on another lattice
     _write_lattice(group, binning)
     _write_samples(group, SAMPLES, frames, binning, plan, client)
     if color:

@@ -103,9 +103,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
     st.begin_stage(group, "resample")
     st.complete_stage(group, "resample", {"lattice": lat.to_json(), "light_kind": FAR})
     st.begin_stage(group, "reconstruct", {"run": key})
-    for name in st.STAGE_VARIABLES["reconstruct"]:  # an earlier run's, e.g. surface maps
-        if name in group:
-            del group[name]
+    st.drop_stage_variables(group, "reconstruct")  # an earlier run's, e.g. surface maps
     for name, values in lat.coords().items():
         st.write_coord(group, name, values, **coordinate_attrs(FAR)[name])
     ltm = st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
