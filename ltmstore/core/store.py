@@ -44,7 +44,7 @@ STAGE_VARIABLES = {
                     "ltm_tiles_done", "ltm_cb_tiles_done", "ltm_cr_tiles_done",
                     "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light",
                     # a far-light store's surface model (ltmstore.stages.surface)
-                    "normal", "albedo", "specular", "roughness", "ambient"),
+                    "normal", "albedo", "specular", "roughness", "ambient", "exposure"),
 }
 # The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.

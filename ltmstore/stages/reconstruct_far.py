@@ -99,6 +99,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
     loo32 = loo.astype(np.float32)  # per pixel (expected_error): float32 as the values
     to_lattice = [m.weights(train, cells).astype(np.float32) for m in models]
     frames = np.asarray(group[FRAMES][:])[valid]  # linear: each tile encodes its own pixels
+    gain = np.ones(len(frames), dtype=np.float32)  # the frames' exposures (surface.exposures)
     plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile or FAR_TILE, chunk_bytes=2**20)
     st.begin_stage(group, "resample")
     st.complete_stage(group, "resample", {"lattice": lat.to_json(), "light_kind": FAR})
@@ -118,7 +119,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
         ``choice``, every k-th pixel only (:data:`CHOICE_PIXELS` of them)."""
         rows, cols = (slice(i * t, min((i + 1) * t, n)) for i, t, n in
                       zip(index, plan.tile, plan.image, strict=True))
-        values = frames[:, rows, cols].reshape(len(frames), -1)
+        values = frames[:, rows, cols].reshape(len(frames), -1) / gain[:, None]
         if choice:
             values = values[:, :: max(1, values.shape[1] // CHOICE_PIXELS)]
         return rows, cols, linear_to_srgb(values)
@@ -129,12 +130,11 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
         best = int(chosen[index])
         if best < len(models):
             fitted, residual = to_lattice[best] @ values, loo32[best] @ values
-        else:  # the surface model plus its smoothed residual
+        else:  # the surface model plus its smoothed residual (and classic model)
             tile_theta = theta[rows, cols].reshape(-1, 3, 6)
-            fitted = (smoother.weights(train, cells) @ values
-                      + sf.correction(tile_theta, train, cells, smoother, color=False))
-            residual = loo_operator(smoother.hat(train)) @ (
-                values - sf.model_encoded(tile_theta, train, color=False))
+            fitted = (blend.weights(train, cells) @ values
+                      + blend.correction(tile_theta, train, cells, color=False))
+            residual = blend.loo_residual(tile_theta, train, values)
         fitted = np.clip(fitted, 0, None)
         ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
         rms = np.sqrt(np.mean(residual**2, axis=0))
@@ -154,9 +154,9 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
             surface = _surface(group, valid, train, models[pick(mse.mean(axis=0), models,
                                                                 len(train))], method, timings)
             if surface is not None:
-                theta, smoother = surface
+                theta, blend, gain[:] = surface
                 chosen[...] = len(names)
-                names.append(sf.PREFIX + smoother.name)
+                names.append(blend.name)
         list(tqdm(pool.map(write, tiles), total=plan.n_tiles, desc="reconstruct tiles",
                   disable=not progress))
     timings["solve_s"] = time.perf_counter() - solve_start
@@ -177,28 +177,48 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
 
 
 def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: Model,
-             method: str, timings: dict) -> tuple[np.ndarray, Model] | None:
+             method: str, timings: dict) -> tuple[np.ndarray, sf.Blend, np.ndarray] | None:
     """Fit the surface model (:mod:`ltmstore.stages.surface`) to the whole image and write its
     maps, where ``method`` is ``physical`` or where (``auto``) it predicts held-out lights of a
     sample of the pixels better than ``classic``, the image's choice, by
-    :data:`~ltmstore.stages.surface.MARGIN`; its parameters
-    ``(y, x, 3, 6)`` and residual smoother, or None (the classic models stay)."""
+    :data:`~ltmstore.stages.surface.MARGIN`. Returns its parameters ``(y, x, 3, 6)``, its
+    :class:`~ltmstore.stages.surface.Blend` and the valid frames' exposures (ones unless
+    chosen), or None (the classic models stay)."""
     start = time.perf_counter()
     rgb = sf.frames_rgb(group, valid)
     flat = rgb.reshape(len(rgb), -1, 3)
     sample = np.sort(np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS])
+    exposure, weight = False, 1.0
     if method == "auto":
         scores = sf.cross_validated(flat[:, sample], train, classic)
         timings["surface_choice_s"] = time.perf_counter() - start
-        timings["surface_heldout_mse"] = {"surface": scores[0], classic.name: scores[1]}
-        if scores[0] >= (1 - sf.MARGIN) * scores[1]:
+        timings["surface_heldout_mse"] = {
+            classic.name if key is None else f"exposure={key[0]},weight={key[1]:g}": value
+            for key, value in scores.items()}
+        best = sf.choose_surface(scores)
+        if best is None:
             return None
+        exposure, weight = best
+    gain = np.ones(len(train), dtype=np.float32)
+    if exposure:
+        gain[:] = sf.exposures(flat[:, sample], train)
+        rgb /= gain[:, None, None, None]
+        _write_exposure(group, valid, gain)
     theta = sf.fit_image(rgb, train, workers=min(2, os.cpu_count() or 1))
     sf.write_surface(group, theta)
     encoded = linear_to_srgb((flat[:, sample] @ LUMA).astype(np.float32))
     smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train)
     timings["surface_s"] = time.perf_counter() - start
-    return theta, smoother
+    return theta, sf.Blend(smoother, classic, weight), gain
+
+
+def _write_exposure(group: zarr.Group, valid: np.ndarray, gain: np.ndarray) -> None:
+    """``exposure (t)``: the valid frames' exposures (:func:`~ltmstore.stages.surface.exposures`),
+    1 for the others; relighting divides the frames by it."""
+    values = np.ones(len(valid), dtype=np.float32)
+    values[valid] = gain
+    arr = st.create_variable(group, sf.EXPOSURE, ("t",), values.shape, chunks=values.shape)
+    arr[...] = values
 
 
 def _loo_mse(values: np.ndarray, loo: np.ndarray, usable: np.ndarray) -> np.ndarray:

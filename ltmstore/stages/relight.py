@@ -431,10 +431,11 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
     per_pixel = np.repeat(np.repeat(codes, ty, 0), tx, 1)[: ds.sizes["y"], : ds.sizes["x"]]
     per_pixel = xr.DataArray(per_pixel, dims=("y", "x"))
     names = {int(c): chosen.attrs["methods"][int(c)] for c in np.unique(codes)}
-    models = {c: Model(name.removeprefix(surface.PREFIX)) for c, name in names.items()}
+    models = {c: surface.Blend.from_name(name) if name.startswith(surface.PREFIX)
+              else Model(name) for c, name in names.items()}
     weights = {c: xr.DataArray(m.weights(train, dirs).astype(np.float32), dims=(LIGHT, T))
                for c, m in models.items()}
-    physical = [c for c, name in names.items() if name.startswith(surface.PREFIX)]
+    physical = [c for c, m in models.items() if isinstance(m, surface.Blend)]
 
     def apply(encoded: xr.DataArray) -> xr.DataArray:
         """The models on sRGB-encoded frames, decoded to linear light."""
@@ -449,21 +450,24 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
 
     used = {T: np.flatnonzero(valid)}
     luminance = ds[FRAMES].isel(used).drop_vars(T)
+    exposure = (ds[surface.EXPOSURE].isel(used).drop_vars(T).astype(np.float32)
+                if surface.EXPOSURE in ds else 1)
     if not color:
-        return apply(_transfer(luminance, linear_to_srgb))
+        return apply(_transfer(luminance / exposure, linear_to_srgb))
     cb, cr = (ds[FRAME_CHROMA].sel(channel=c, drop=True).isel(used).drop_vars(T)
               .astype(np.float32) for c in ("cb", "cr"))
-    rgb = _stack_rgb(luminance, cb, cr).clip(min=0)
+    rgb = _stack_rgb(luminance, cb, cr).clip(min=0) / exposure
     return apply(_transfer(rgb, linear_to_srgb)).transpose(LIGHT, "y", "x", COLOR)
 
 
-def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray, smoother: Model,
-                        color: bool) -> xr.DataArray:
-    """What the surface model adds to its residual smoother's image at ``dirs``
-    (:func:`ltmstore.stages.surface.correction`), sRGB-encoded, ``(light, y, x[, color])``."""
+def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
+                        blend: surface.Blend, color: bool) -> xr.DataArray:
+    """What the surface model adds to its blend's linear image at ``dirs``
+    (:meth:`ltmstore.stages.surface.Blend.correction`), sRGB-encoded,
+    ``(light, y, x[, color])``."""
     theta = surface.read_surface(ds)
     image = theta.shape[:2]
-    corr = surface.correction(theta.reshape(-1, 3, 6), train, dirs, smoother, color=color)
+    corr = blend.correction(theta.reshape(-1, 3, 6), train, dirs, color=color)
     dims = (LIGHT, "y", "x", COLOR) if color else (LIGHT, "y", "x")
     return xr.DataArray(corr.reshape(len(dirs), *image, *corr.shape[2:]), dims=dims)
 
