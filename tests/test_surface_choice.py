@@ -131,10 +131,12 @@ def test_a_flickering_capture_is_fitted_at_its_mean_exposure(tmp_path, flicker):
         reconstruct(store, method=method, progress=False)
         errors[method] = relit_error(store, gains)
     ds = open_store(tmp_path / "auto.zarr")
-    assert (sf.EXPOSURE in ds) == flicker
+    assert (sf.EXPOSURE in ds) == flicker == ds.attrs["stages"]["reconstruct"]["exposure_fitted"]
     if flicker:
         assert np.corrcoef(ds[sf.EXPOSURE].values, gains)[0, 1] > 0.88  # measured 0.91
         # measured 0.0063, 0.34 times the surface alone
         assert errors["auto"] < 0.0075 and errors["auto"] < 0.4 * errors["physical"], errors
+        reconstruct(tmp_path / "auto.zarr", method="rbf", overwrite=True, progress=False)
+        assert sf.EXPOSURE not in open_store(tmp_path / "auto.zarr")  # a later fit's frames
     else:
         assert errors["auto"] < 0.0015, errors  # measured 0.0012

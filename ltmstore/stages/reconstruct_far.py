@@ -170,7 +170,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
             "path_density": None, "chosen_per_tile": counts,
             "methods_per_tile": counts, "plan": asdict(plan),
             "tiles_total": plan.n_tiles, "tiles_solved": plan.n_tiles, "tiles_resumed": 0,
-            "resumed": False, "timings": timings,
+            "resumed": False, "timings": timings, "exposure_fitted": bool((gain != 1).any()),
             "seconds_per_pixel": timings["solve_s"] / int(np.prod(plan.image))}
     st.complete_stage(group, "reconstruct", info)
     return info
