@@ -36,7 +36,7 @@ import numpy as np
 from ltmstore.core.dims import LUMA
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.judge.photos import load_photos, score
-from ltmstore.solve.lightfit import Model, choose, loo_operator
+from ltmstore.solve.lightfit import Model, choose
 from ltmstore.stages import surface as sf
 
 REAL = ("loewenkopf", "realrti-item9-coin", "realrti-item3-icon")
@@ -76,27 +76,14 @@ def chosen(cv: dict[str, float]) -> str:
     return "classic" if choice is None else next(k for k, v in keys.items() if v == choice)
 
 
-def exposures(rgb: np.ndarray, train: np.ndarray) -> np.ndarray:
-    """Each photograph's luminance over the surface's leave-one-out prediction of it, mean 1."""
-    encoded = linear_to_srgb((rgb @ LUMA).astype(np.float32))
-    theta = sf.fit_pixels(rgb, train)
-    smoother = sf.choose_smoother(encoded, theta, train)
-    residual = encoded - sf.model_encoded(theta, train, color=False)
-    predicted = srgb_to_linear((encoded - loo_operator(smoother.hat(train)) @ residual).clip(0, 1))
-    ratio = (rgb @ LUMA).sum(axis=1) / predicted.sum(axis=1)
-    return ratio / ratio.mean()
-
-
 def predictions(rgb: np.ndarray, train: np.ndarray, query: np.ndarray, classic: Model, *,
                 color: bool) -> dict[str, np.ndarray]:
     """Every variant's sRGB-encoded images at ``query`` from linear ``rgb (n, p, 3)``."""
     out = {}
     for kind in ("raw", "exposure"):
-        x = rgb / exposures(rgb, train)[:, None, None] if kind == "exposure" else rgb
+        x = rgb / sf.exposures(rgb, train)[:, None, None] if kind == "exposure" else rgb
+        _, theta, smoother = sf.fitted(x, train)
         values = linear_to_srgb((x if color else x @ LUMA).astype(np.float32))
-        theta = sf.fit_pixels(x, train)
-        smoother = sf.choose_smoother(linear_to_srgb((x @ LUMA).astype(np.float32)), theta,
-                                      train)
         ours = (np.tensordot(smoother.weights(train, query), values, axes=1)
                 + sf.correction(theta, train, query, smoother, color=color))
         theirs = np.tensordot(classic.weights(train, query), values, axes=1)
@@ -141,7 +128,7 @@ def measure(data: Path, name: str) -> dict:
             for key, value in images.items()}
     return {"classic": classic.name, "test_psnr": psnr, "heldout_mse_vs_classic": cv,
             "chosen": {protocol: chosen(scores) for protocol, scores in cv.items()},
-            "exposure_spread": float(np.std(exposures(rgb, train)))}
+            "exposure_spread": float(np.std(sf.exposures(rgb, train)))}
 
 
 def main() -> None:
