@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from ltmstore.cli import main
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.solve import physical
@@ -119,7 +120,7 @@ def relit_error(store: Path, gains: np.ndarray) -> float:
 
 
 @pytest.mark.parametrize("flicker", [True, False])
-def test_a_flickering_capture_is_fitted_at_its_mean_exposure(tmp_path, flicker):
+def test_a_flickering_capture_is_fitted_at_its_mean_exposure(tmp_path, capsys, flicker):
     """``auto`` fits the exposures where the flash flickers (and only there): relit without
     the flicker, three times closer to the steady capture than the surface fitted without them."""
     gains = flash(sum(RINGS.values())) if flicker else np.ones(sum(RINGS.values()))
@@ -136,6 +137,8 @@ def test_a_flickering_capture_is_fitted_at_its_mean_exposure(tmp_path, flicker):
         assert np.corrcoef(ds[sf.EXPOSURE].values, gains)[0, 1] > 0.88  # measured 0.91
         # measured 0.0063, 0.34 times the surface alone
         assert errors["auto"] < 0.0075 and errors["auto"] < 0.4 * errors["physical"], errors
+        assert main(["reconstruct", str(tmp_path / "auto.zarr"), "--overwrite"]) == 0
+        assert "at each photograph's exposure" in capsys.readouterr().out
         reconstruct(tmp_path / "auto.zarr", method="rbf", overwrite=True, progress=False)
         assert sf.EXPOSURE not in open_store(tmp_path / "auto.zarr")  # a later fit's frames
     else:

@@ -225,7 +225,8 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
           + ("" if density is None else f"path density {density:.1f}/unit  ")
           + f"method {info['method']} {summary_of(info['methods_per_tile'])}  "
-          f"resample {info['timings']['resample_s']:.1f} s  "
+          + ("at each photograph's exposure  " if info.get("exposure_fitted") else "")
+          + f"resample {info['timings']['resample_s']:.1f} s  "
           f"solve {info['timings']['solve_s']:.1f} s")
 
 
