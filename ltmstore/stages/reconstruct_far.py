@@ -132,9 +132,8 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
             fitted, residual = to_lattice[best] @ values, loo32[best] @ values
         else:  # the surface model plus its smoothed residual (and classic model)
             tile_theta = theta[rows, cols].reshape(-1, 3, 6)
-            fitted = (blend.weights(train, cells) @ values
-                      + blend.correction(tile_theta, train, cells, color=False))
-            residual = blend.loo_residual(tile_theta, train, values)
+            fitted = at_cells.image(tile_theta, values)
+            residual = at_cells.loo_residual(tile_theta, values)
         fitted = np.clip(fitted, 0, None)
         ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
         rms = np.sqrt(np.mean(residual**2, axis=0))
@@ -155,6 +154,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
                                                                 len(train))], method, timings)
             if surface is not None:
                 theta, blend, gain[:] = surface
+                at_cells = sf.BlendAt.of(blend, train, cells)  # once for every tile
                 chosen[...] = len(names)
                 names.append(blend.name)
         list(tqdm(pool.map(write, tiles), total=plan.n_tiles, desc="reconstruct tiles",

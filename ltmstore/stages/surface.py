@@ -104,15 +104,41 @@ class Blend:
         """The model's part of the image at ``query`` (:func:`correction`, weighted)."""
         return self.weight * correction(theta, train, query, self.smoother, color=color)
 
-    def loo_residual(self, theta: np.ndarray, train: np.ndarray,
-                     encoded: np.ndarray) -> np.ndarray:
+
+@dataclass(frozen=True)
+class BlendAt:
+    """A :class:`Blend`'s operators for photographs at ``train`` and images at ``query``,
+    computed once and applied to every tile of pixels (:meth:`of`)."""
+
+    blend: Blend
+    train: np.ndarray
+    query: np.ndarray
+    linear: np.ndarray  # (q, n) Blend.weights
+    smoother: np.ndarray  # (q, n) the smoother's weights, for the model's correction
+    loo_own: np.ndarray  # (n, n) leave-one-out operators of the smoother...
+    loo_other: np.ndarray | None  # ...and of the classic model (None: not mixed)
+
+    @classmethod
+    def of(cls, blend: Blend, train: np.ndarray, query: np.ndarray) -> BlendAt:
+        other = None if blend.weight == 1 else loo_operator(blend.classic.hat(train))
+        return cls(blend, train, query, blend.weights(train, query).astype(np.float32),
+                   blend.smoother.weights(train, query).astype(np.float32),
+                   loo_operator(blend.smoother.hat(train)), other)
+
+    def image(self, theta: np.ndarray, encoded: np.ndarray) -> np.ndarray:
+        """Luminance ``(q, p)`` at the query lights from ``encoded (n, p)`` of the pixels
+        ``theta (p, 3, 6)``."""
+        return self.linear @ encoded + self.blend.weight * correction(
+            theta, self.train, self.query, self.blend.smoother, color=False,
+            weights=self.smoother)
+
+    def loo_residual(self, theta: np.ndarray, encoded: np.ndarray) -> np.ndarray:
         """Leave-one-light-out residuals ``(n, p)`` of the luminance ``encoded (n, p)``."""
-        own = loo_operator(self.smoother.hat(train)) @ (
-            encoded - model_encoded(theta, train, color=False))
-        other = loo_operator(self.classic.hat(train))
-        if self.weight == 1 or other is None:
+        own = self.loo_own @ (encoded - model_encoded(theta, self.train, color=False))
+        if self.loo_other is None:
             return own
-        return self.weight * own + (1 - self.weight) * (other @ encoded)
+        weight = self.blend.weight
+        return weight * own + (1 - weight) * (self.loo_other @ encoded)
 
 
 def frames_rgb(group: zarr.Group, valid: np.ndarray) -> np.ndarray:
@@ -147,10 +173,12 @@ def model_encoded(theta: np.ndarray, directions: np.ndarray, *, color: bool) -> 
 
 
 def correction(theta: np.ndarray, train: np.ndarray, query: np.ndarray, smoother: Model, *,
-               color: bool) -> np.ndarray:
+               color: bool, weights: np.ndarray | None = None) -> np.ndarray:
     """What the model adds to the smoother's image of the encoded photographs at ``query``:
-    ``srgb(M(query)) - W(query) srgb(M(train))``, ``(q, p[, 3])``."""
-    weights = smoother.weights(train, query).astype(np.float32)
+    ``srgb(M(query)) - W(query) srgb(M(train))``, ``(q, p[, 3])``; ``weights``: ``W(query)``
+    when it is already at hand."""
+    if weights is None:
+        weights = smoother.weights(train, query).astype(np.float32)
     at_train = model_encoded(theta, train, color=color)
     mixed = np.tensordot(weights, at_train, axes=1)
     return model_encoded(theta, query, color=color) - mixed
