@@ -14,7 +14,8 @@ def run_demo(out, *, scene: str = "relief", size: int = 96, seed: int = 0,
     """Run the whole pipeline on embedded defaults and print a short report.
 
     Local Dask cluster, Prefect with no server configured (a temporary one starts), outputs
-    under ``out``: ``acquisition/`` (with ``truth.zarr``), ``store.zarr``, ``previews/``.
+    under ``out``: ``acquisition/`` (with ``truth.zarr``), ``store.zarr``, ``previews/`` (at the
+    capture's exposure, :func:`ltmstore.stages.preview.render_previews`).
     """
     from flows.process import process_acquisition
     from ltmstore.core.store import open_store
@@ -53,5 +54,6 @@ def run_demo(out, *, scene: str = "relief", size: int = 96, seed: int = 0,
           f"(relit PSNR median {accuracy['psnr_db_median']:.2f} dB)")
     for name, seconds in times.items():
         print(f"  {name:<40s} {seconds:7.1f} s")
-    print(f"outputs: {store}, {out / 'previews'} (relit_*.png, relight.gif)")
+    print(f"outputs: {store}, {out / 'previews'} (relit_*.png, relight.gif, at the capture's "
+          "exposure)")
     return {"simulate": sim, "flow": report, "accuracy": accuracy, "seconds": times}

@@ -70,7 +70,7 @@ def test_cs_recovers_4d_ltfs_whose_masks_differ_per_pixel():
     assert len({np.isfinite(r).tobytes() for r in samples}) == len(samples)
     geometry = Geometry(LATTICE)
     estimate = get_method("cs")(samples, geometry, n_iter=100, lam_min=1e-4)
-    assert snr_db(truth, estimate) > 20
+    assert snr_db(truth, estimate) > 74.3  # measured 75.34 dB
     # Differing masks cost nothing and change nothing: the batch equals pixel-by-pixel solves.
     one_by_one = np.concatenate([get_method("cs")(row[None], geometry, n_iter=100, lam_min=1e-4)
                                  for row in samples])

@@ -55,7 +55,7 @@ def test_float16_is_lossy_within_its_measured_snr(store_copy, small_store):
 
     before = store_bytes(store_copy)
     info = compact(store_copy, precision="float16", keep_frames=True)
-    assert info["snr_db"] > 65  # measured 73.6 dB (float16 keeps 11 significant bits)
+    assert info["snr_db"] > 72.7  # measured 73.71 dB (float16 keeps 11 significant bits)
     assert info["bytes_after"] < before
     ds = open_store(store_copy)
     assert ds["ltm"].dtype == np.float32  # read back as float32

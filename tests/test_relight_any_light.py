@@ -33,7 +33,16 @@ def test_far_store_sweep_is_finite_and_non_negative(far_store):
         images = relight(far_store, directions=SWEEP).values
     assert len(caught) == 1  # one line for all the lights far from the captured ones
     assert images.shape == (len(SWEEP), 6, 5, 3)
-    assert np.isfinite(images).all() and (images >= 0).all()
+    assert np.isfinite(images).all()
+    # what the clip at 0 hides: black pixels (an extrapolation below 0) only at 5 degrees, the
+    # lowest light (measured: 1.54 % of all values, the images at azimuths 0-90 there)
+    clipped = (images == 0).mean(axis=(1, 2, 3))
+    assert clipped.mean() < 0.016 and (clipped[SWEEP[:, 2] > np.sin(np.radians(7))] == 0).all()
+    # and the sensible rest: a lower light gives a darker image (measured 0.018 at 5 degrees,
+    # rising at every step to 0.354 at 90)
+    by_elevation = [images[np.isclose(SWEEP[:, 2], np.sin(np.radians(e)))].mean()
+                    for e in ELEVATIONS]
+    assert (np.diff(by_elevation) > 0).all(), by_elevation
 
 
 def test_far_store_relights_a_captured_light_like_its_photograph(far_store):
@@ -68,7 +77,12 @@ def test_far_store_records_its_kind_and_choices(far_store):
 
 def test_near_store_sweep_is_finite_and_non_negative(small_store):
     images = relight(small_store, directions=SWEEP, color=True).values
-    assert np.isfinite(images).all() and (images >= 0).all()
+    assert np.isfinite(images).all()
+    # what the clip at 0 hides: measured 12.85 % of the values at 0 (cast shadows of the relief
+    # at low lights and extrapolation below 0), never a whole image (darkest mean 0.103)
+    assert (images == 0).mean() < 0.135
+    assert images.mean(axis=(1, 2, 3)).min() > 0.09
+    assert (images[SWEEP[:, 2] > np.sin(np.radians(55))] > 0).all()  # measured: none at 0
 
 
 def test_near_store_direction_is_the_plane_position_at_its_height(small_store):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import zarr
 from archive_helpers import (
     N_TILES,
     SLOW_ARGS,
@@ -19,7 +20,14 @@ from archive_helpers import (
 )
 from pipeline_helpers import run_ltm
 
-from ltmstore.core.store import open_group, open_store, revision_path, stages
+from ltmstore.core.store import (
+    STAGES_ATTR,
+    open_group,
+    open_store,
+    revised_store,
+    revision_path,
+    stages,
+)
 from ltmstore.stages.reconstruct import reconstruct, tiles_name
 
 OUTPUTS = ("ltm", "expected_error", "unsupported")
@@ -98,3 +106,27 @@ def test_a_killed_overwrite_keeps_the_good_ltm_and_the_next_one_resumes(small_st
         np.testing.assert_array_equal(open_store(store)[name].values, reference[name].values,
                                       err_msg=name)
     assert not revision_path(store).exists()
+
+
+def test_the_same_lattice_with_another_method_starts_over(killed, client):
+    """The run key decides: same lattice and tiles (the plan matches), another method."""
+    store, done = killed
+    info = reconstruct(store, client=client, lattice=(8, 8), tile=8, method="cs",
+                       progress=False)
+    assert done > 0 and info["tiles_resumed"] == 0 and not info["resumed"]
+    assert info["tiles_solved"] == N_TILES
+    assert stages(open_group(store))["reconstruct"]["run"]["method"] == "cs"
+
+
+def test_a_leftover_revision_of_another_ingest_is_not_reused(small_store, tmp_path):
+    """A revision beside the store that holds another ingest (the store was ingested again
+    after a killed --overwrite) is removed, never swapped in."""
+    store = copy_store(small_store, tmp_path / "store.zarr")
+    stale = copy_store(store, revision_path(store))
+    group = zarr.open_group(str(stale), mode="r+")
+    record = group.attrs.asdict()[STAGES_ATTR]
+    group.attrs[STAGES_ATTR] = {**record, "ingest": {**record["ingest"], "n_valid": -1}}
+    ingest = stages(open_group(store))["ingest"]
+    with revised_store(store) as side:
+        assert stages(open_group(side))["ingest"] == ingest
+    assert stages(open_group(store))["ingest"] == ingest and not stale.exists()

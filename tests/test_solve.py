@@ -16,8 +16,8 @@ def sparse_ltfs(n, lattice, sparsity, rng):
     return SensingOperator(np.ones(lattice, bool)).idct(coef)
 
 
-@pytest.mark.parametrize("name", ["cs", "lars"])
-def test_recovers_exactly_sparse_ltf(name):
+@pytest.mark.parametrize(("name", "bound"), [("cs", 93.4), ("lars", 147.0)])
+def test_recovers_exactly_sparse_ltf(name, bound):
     """K >= C S log M random cells recover an S-sparse LTF (C ~ 2 here)."""
     rng = np.random.default_rng(3)
     lattice, sparsity = (16, 16), 4
@@ -29,7 +29,8 @@ def test_recovers_exactly_sparse_ltf(name):
     samples = np.where(mask.reshape(lattice), truth, np.nan)
     params = {"n_iter": 400, "lam_min": 1e-5} if name == "cs" else {}
     estimate = get_method(name)(samples, Geometry.from_shape(lattice), **params)
-    assert snr_db(truth, estimate) > 40
+    # measured 94.44 dB (cs) and 151.90 dB (lars, exact up to rounding): 1 dB / 3 % below
+    assert snr_db(truth, estimate) > bound
 
 
 def test_observed_cells_are_kept():

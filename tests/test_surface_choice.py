@@ -121,8 +121,9 @@ def relit_error(store: Path, gains: np.ndarray) -> float:
 
 @pytest.mark.parametrize("flicker", [True, False])
 def test_a_flickering_capture_is_fitted_at_its_mean_exposure(tmp_path, capsys, flicker):
-    """``auto`` fits the exposures where the flash flickers (and only there): relit without
-    the flicker, three times closer to the steady capture than the surface fitted without them."""
+    """``auto`` fits the exposures where the flash flickers (and leaves them at 1 where it does
+    not): relit without the flicker, three times closer to the steady capture than the surface
+    fitted without them."""
     gains = flash(sum(RINGS.values())) if flicker else np.ones(sum(RINGS.values()))
     lp = write_capture(tmp_path / "capture", gains)
     errors = {}
@@ -132,9 +133,12 @@ def test_a_flickering_capture_is_fitted_at_its_mean_exposure(tmp_path, capsys, f
         reconstruct(store, method=method, progress=False)
         errors[method] = relit_error(store, gains)
     ds = open_store(tmp_path / "auto.zarr")
-    assert (sf.EXPOSURE in ds) == flicker == ds.attrs["stages"]["reconstruct"]["exposure_fitted"]
+    assert (sf.EXPOSURE in ds) == ds.attrs["stages"]["reconstruct"]["exposure_fitted"]
     if flicker:
-        assert np.corrcoef(ds[sf.EXPOSURE].values, gains)[0, 1] > 0.88  # measured 0.91
+        assert sf.EXPOSURE in ds
+        # measured 0.96 (0.91 while three of its 168 pixels, fitted at roughness 1, were left
+        # several times too bright: see physical.fit_colour)
+        assert np.corrcoef(ds[sf.EXPOSURE].values, gains)[0, 1] > 0.93
         # measured 0.0063, 0.34 times the surface alone
         assert errors["auto"] < 0.0075 and errors["auto"] < 0.4 * errors["physical"], errors
         assert main(["reconstruct", str(tmp_path / "auto.zarr"), "--overwrite"]) == 0
@@ -142,4 +146,10 @@ def test_a_flickering_capture_is_fitted_at_its_mean_exposure(tmp_path, capsys, f
         reconstruct(tmp_path / "auto.zarr", method="rbf", overwrite=True, progress=False)
         assert sf.EXPOSURE not in open_store(tmp_path / "auto.zarr")  # a later fit's frames
     else:
-        assert errors["auto"] < 0.0015, errors  # measured 0.0012
+        # A steady flash: its exposures, where held-out lights still choose to fit them (this
+        # noise-free capture, by 5 %), stay at 1 (measured within 0.11 %)
+        if sf.EXPOSURE in ds:
+            assert np.abs(ds[sf.EXPOSURE].values - 1).max() < 0.005
+        # measured 0.0016 (0.0012 while three of its pixels were left too bright, which the
+        # residual's smoother then interpolated at these, the photographed, lights)
+        assert errors["auto"] < 0.0019, errors

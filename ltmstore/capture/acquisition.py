@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ltmstore.core.dims import Plane
+from ltmstore.core.dims import Plane, check_range
 from ltmstore.core.errors import LtmError
 
 FORMAT = "ltm-acquisition/1"
@@ -297,6 +297,11 @@ def _view_plane(value: object, where: str) -> dict | None:
     ):
         raise LtmError(f"{where}: view_plane {value!r} must look like "
                        "{'p': [min, max], 'q': [min, max]} with finite min < max")
+    try:
+        for k, (lo, hi) in ranges.items():
+            check_range(f"view_plane {k}", lo, hi)
+    except LtmError as exc:
+        raise LtmError(f"{where}: {exc}") from None
     return ranges
 
 
@@ -363,6 +368,9 @@ def _read_csv(path: Path) -> tuple[list[str], list[int], list[list[float]]]:
                 if any(v.strip() for v in row):
                     lines.append(reader.line_num)
                     rows.append(_parse_row(path, reader.line_num, header, row))
+    except csv.Error as exc:  # a field over csv.field_size_limit(), a stray NUL
+        raise LtmError(f"{str(path)} line {reader.line_num}: {exc}; expected comma-separated "
+                       "numbers") from None
     except OSError as exc:
         raise LtmError(f"poses file {str(path)!r} cannot be read: {exc.strerror}") from exc
     except UnicodeDecodeError as exc:

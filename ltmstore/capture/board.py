@@ -11,6 +11,7 @@ the board (:meth:`BoardSpec.to_plane`).
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -23,7 +24,9 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
+from ltmstore.capture.acquisition import write_text_atomic
 from ltmstore.core.errors import LtmError
+from ltmstore.core.imagefile import write_bytes_atomic
 
 FORMAT = "ltm-board/1"
 PAPERS_MM = {  # portrait width, height
@@ -262,15 +265,13 @@ def write_board(out: str | os.PathLike, spec: BoardSpec, *, dpi: int = DEFAULT_D
     for path in (out, spec_path):
         if path.exists() and not overwrite:
             raise LtmError(f"output {str(path)!r} already exists; pass --overwrite to replace it")
-    image = Image.fromarray(page_image(spec, dpi))
-    try:
-        if out.suffix.lower() == ".pdf":
-            image.save(out, "PDF", resolution=float(dpi))
-        else:
-            image.save(out, dpi=(dpi, dpi))
-        spec_path.write_text(json.dumps(spec.to_json(), indent=2) + "\n")
-    except OSError as exc:
-        raise LtmError(f"cannot write board {str(out)!r}: {exc.strerror or exc}") from None
+    image, encoded = Image.fromarray(page_image(spec, dpi)), io.BytesIO()
+    if out.suffix.lower() == ".pdf":
+        image.save(encoded, "PDF", resolution=float(dpi))
+    else:
+        image.save(encoded, "PNG", dpi=(dpi, dpi))
+    write_bytes_atomic(out, encoded.getvalue(), what="board")  # whole or not at all
+    write_text_atomic(spec_path, json.dumps(spec.to_json(), indent=2) + "\n", what="board spec")
     return {"image": str(out), "spec": str(spec_path), "dpi": dpi, **spec.to_json()}
 
 

@@ -23,10 +23,23 @@ EPILOG = "Docs: README.md. Stores open with xarray.open_zarr(STORE, consolidated
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (``ltm: error: ...``, exit 2)."""
+    """argparse with one-line errors (``ltm: error: ...``, exit 2), sub-commands too, and the
+    closest option, command or choice for a misspelt one."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        from ltmstore.cli.suggest import with_choice_hint
+
+        self.exit(2, f"{self.prog.split()[0]}: error: {with_choice_hint(message)} "
+                  f"(see {self.prog} --help)\n")
+
+    def parse_args(self, args=None, namespace=None):
+        from ltmstore.cli.suggest import command_parser, unrecognized
+
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:  # named by the command that does not know them, with the closest option
+            parser = command_parser(self, parsed)
+            parser.error(unrecognized(parser, extras))
+        return parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,15 +66,19 @@ def main(argv: list[str] | None = None) -> int:
     from ltmstore.cli.args import join_signed_values
 
     args = build_parser().parse_args(join_signed_values(sys.argv[1:] if argv is None else argv))
+    saved = warnings.catch_warnings()  # the filters below, undone on return
+    saved.__enter__()
     shown = warnings.showwarning
     warnings.showwarning = partial(_one_line_warning, shown)
+    # Zarr's own warnings (a folder that is no array, ...) are store damage: `ltm check` names it
+    warnings.filterwarnings("ignore", category=UserWarning, module=r"zarr(\.|$)")
     try:
         args.func(args)
         sys.stdout.flush()  # a closed pipe (`ltm info STORE | head -1`) shows up here
     except BrokenPipeError:
         return quiet_broken_pipe()
     except LtmError as exc:
-        print(f"ltm: error: {exc}", file=sys.stderr)
+        print(f"ltm: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except ValueError as exc:  # a chunk that fails its checksum, found while reading
         from ltmstore.cli.check import damaged_read
@@ -69,14 +86,28 @@ def main(argv: list[str] | None = None) -> int:
         message = damaged_read(getattr(args, "store", None), exc)
         if message is None:
             raise
-        print(f"ltm: error: {message}", file=sys.stderr)
+        print(f"ltm: error: {one_line(message)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("ltm: interrupted", file=sys.stderr)
         return 130
     finally:
         warnings.showwarning = shown
+        saved.__exit__(None, None, None)
     return 0
+
+
+MESSAGE_MAX = 400  # characters of an error line; a longer one keeps its head and its tail
+
+
+def one_line(message: str, limit: int = MESSAGE_MAX) -> str:
+    """``message`` on one line (whitespace runs collapsed) of at most ``limit`` characters:
+    a longer one keeps its start and its end (what was expected) around `` ... ``."""
+    text = " ".join(message.split())
+    if len(text) <= limit:
+        return text
+    tail = limit // 4
+    return f"{text[:limit - tail - 5]} ... {text[-tail:]}"
 
 
 def quiet_broken_pipe() -> int:

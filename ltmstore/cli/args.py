@@ -27,8 +27,8 @@ def numbers(names: str, unit: str = "plane units"):
     return parse
 
 
-# Options whose values are numbers that may start with a minus (``--light -0.1,0``).
-SIGNED_OPTIONS = ("--light", "--direction", "--view")
+# Options whose values are numbers that may start with a minus (``--light -0.1,0``, ``--ev -1``).
+SIGNED_OPTIONS = ("--light", "--direction", "--view", "--ev")
 _SIGNED_VALUE = re.compile(r"^-[0-9.]")
 
 

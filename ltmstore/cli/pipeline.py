@@ -14,13 +14,16 @@ from ltmstore.core.errors import LtmError, LtmWarning
 
 def register(sub) -> None:
     """Add the pipeline's commands to the ``ltm`` subparsers ``sub``."""
+    from ltmstore.core.transfer import CAPTURE, EV_LIMIT, EXPOSURES
     from ltmstore.solve import DEFAULT_METHOD, METHODS
     from ltmstore.stages.reconstruct import MIN_RATIO, TARGET_RATIO
     from ltmstore.synthetic.scenes import SCENES
 
     p = sub.add_parser("demo", help="simulate, ingest, reconstruct, relight and report",
                        description="Run the whole pipeline on a simulated acquisition as a "
-                       "Prefect flow on a local Dask cluster; print SNR_Y and stage times.")
+                       "Prefect flow on a local Dask cluster; print SNR_Y and stage times. "
+                       "Its previews (relit_*.png, relight.gif) are at the capture's exposure "
+                       "(photometric, as ltm relight's default).")
     p.add_argument("--out", default="ltm-demo", help="output folder (default: %(default)s)")
     p.add_argument("--scene", default="relief", choices=SCENES)
     p.add_argument("--size", type=int, default=96,
@@ -62,6 +65,10 @@ def register(sub) -> None:
     p.add_argument("lp", help="the .lp light file beside the images")
     p.add_argument("store", help="Zarr store to create")
     p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--holdout-lights", type=int, metavar="EVERY",
+                   help="leave out every EVERY-th light, as `ltm evaluate --holdout-lights` "
+                   "does, and list them (index, direction, image): `ltm relight --direction` "
+                   "at one of them writes the image to compare with its photograph")
     p.set_defaults(func=cmd_ingest_rti)
 
     p = sub.add_parser("reconstruct", help="resample onto a lattice and solve every pixel",
@@ -75,7 +82,8 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true",
                    help=f"run a --lattice or --delta-rs whose K/M (observed cells / cells) is "
                    f"below {MIN_RATIO}; refused otherwise, naming the lattice that reaches "
-                   f"{TARGET_RATIO}")
+                   f"{TARGET_RATIO}. A lattice that cannot fit in memory or on the store's "
+                   "disk is refused even so, naming its size")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *sorted(METHODS)],
                    help="solver (default: %(default)s: per pixel tile, the method and model "
                    "size with the lowest held-out error, physical among them where "
@@ -101,7 +109,11 @@ def register(sub) -> None:
                        description="Relight any store: a near-light store (handheld LED) at "
                        "plane positions or directions, a far-light store (ingest-rti) at "
                        "directions or (lx, ly) positions in the unit disk. Lights far from "
-                       "every captured one are extrapolated smoothly, with a warning.")
+                       "every captured one are extrapolated smoothly, with a warning. Images "
+                       "are written at the capture's exposure (photometric, the default): a "
+                       "light of the capture gives that photograph's (or, near lights, camera "
+                       "B's video's) brightness, a dimmer light a dimmer image, --sum the sum "
+                       "of the lights, clipped at white as in a camera.")
     p.add_argument("store")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--light", type=numbers("R,S"), action="append",
@@ -118,6 +130,13 @@ def register(sub) -> None:
                    "without it -0, -1, ... before the suffix (relit-0.png, relit-1.png)")
     p.add_argument("--sum", action="store_true",
                    help="several lights: one image lit by all of them together")
+    p.add_argument("--exposure", choices=EXPOSURES, default=CAPTURE,
+                   help="capture: the stored linear light as it is, at the capture's exposure; "
+                   "auto: scaled so that the brightest 0.5%% of the pixels (of all the "
+                   "images written) clip (default: %(default)s)")
+    p.add_argument("--ev", type=number, default=0.0, metavar="STOPS",
+                   help=f"stops added to --exposure: linear light times 2**STOPS, from "
+                   f"{-EV_LIMIT:g} to {EV_LIMIT:g} (default: 0)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_relight)
 
@@ -208,7 +227,22 @@ def cmd_ingest(a: argparse.Namespace) -> None:
 def cmd_ingest_rti(a: argparse.Namespace) -> None:
     from ltmstore.stages.ingest_rti import ingest_rti
 
-    print_json(ingest_rti(a.lp, a.store, overwrite=a.overwrite))
+    if a.holdout_lights is None:
+        return print_json(ingest_rti(a.lp, a.store, overwrite=a.overwrite))
+    import numpy as np
+
+    from ltmstore.capture.lp import LpWarning, read_lp
+    from ltmstore.judge.photos import hidden_lights
+
+    with warnings.catch_warnings():  # ingest_rti reads it again and warns once
+        warnings.simplefilter("ignore", LpWarning)
+        names, directions = read_lp(a.lp)
+    hidden = hidden_lights(len(names), a.holdout_lights)
+    report = ingest_rti(a.lp, a.store, lights=np.flatnonzero(~hidden).tolist(),
+                        overwrite=a.overwrite)
+    report["held_out"] = [{"index": int(i), "direction": directions[i].tolist(),
+                           "image": names[i]} for i in np.flatnonzero(hidden)]
+    print_json(report)
 
 
 def cmd_reconstruct(a: argparse.Namespace) -> None:
@@ -223,11 +257,20 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
                        light_major=not a.no_light_major)
     density = info["path_density"]
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
-          + ("" if density is None else f"path density {density:.1f}/unit  ")
+          + ("" if density is None else f"path density {density:.1f}/{plane_unit(a.store)}  ")
           + f"method {info['method']} {summary_of(info['methods_per_tile'])}  "
           + ("at each photograph's exposure  " if info.get("exposure_fitted") else "")
           + f"resample {info['timings']['resample_s']:.1f} s  "
           f"solve {info['timings']['solve_s']:.1f} s")
+
+
+def plane_unit(store: str) -> str:
+    """The unit of the store's light plane (``m`` unless its acquisition says otherwise): a path
+    density is a length per area of it, 1/unit."""
+    from ltmstore.core.store import open_group
+
+    plane = open_group(store, mode="r").attrs.get("acquisition", {}).get("plane", {})
+    return str(plane.get("unit", "m"))
 
 
 def summary_of(chosen: dict) -> str:
@@ -238,13 +281,14 @@ def summary_of(chosen: dict) -> str:
 
 
 def cmd_relight(a: argparse.Namespace) -> None:
-    import imageio.v3 as iio
     import numpy as np
 
+    from ltmstore.core.imagefile import write_image
     from ltmstore.core.store import open_store
-    from ltmstore.core.transfer import encode_images
+    from ltmstore.core.transfer import check_exposure, encode_images
     from ltmstore.stages.relight import LightClampWarning, relight
 
+    check_exposure(a.exposure, a.ev)
     ds = open_store(a.store)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LightClampWarning)
@@ -258,18 +302,19 @@ def cmd_relight(a: argparse.Namespace) -> None:
     for w in caught:
         print(f"ltm: warning: {w.message}", file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-    for out, image in zip(outputs, encode_images(images, transfer), strict=True):
-        try:
-            iio.imwrite(out, image)
-        except (OSError, ValueError) as exc:
-            raise LtmError(f"cannot write image {str(out)!r}: {exc}") from exc
+    for out, image in zip(outputs, encode_images(images, transfer, exposure=a.exposure,
+                                                 ev=a.ev), strict=True):
+        write_image(out, image)  # whole or not at all: a full disk leaves no file
         print(f"wrote {out}")
 
 
 def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool) -> list[Path]:
     """The images of ``n`` lights: one (``combined``, or one light), else one per light named
     by ``pattern`` with ``{i}`` (or ``-i`` before the suffix); existing ones refused unless
-    ``overwrite``."""
+    ``overwrite``; a missing folder or a suffix that names no image format refused."""
+    from ltmstore.core.imagefile import check_image_path
+
+    check_image_path(pattern)
     if combined and n > 1:
         paths = [Path(pattern.replace("{i}", "sum"))]
     elif "{i}" in pattern or n == 1:
@@ -277,6 +322,8 @@ def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool) -> lis
     else:
         base = Path(pattern)
         paths = [base.with_name(f"{base.stem}-{i}{base.suffix}") for i in range(n)]
+    if not paths[0].parent.is_dir():
+        raise LtmError(f"output folder {str(paths[0].parent)!r} does not exist")
     existing = [p for p in paths if p.exists()]
     if existing and not overwrite:
         raise LtmError(f"output {str(existing[0])!r} already exists; pass --overwrite to "

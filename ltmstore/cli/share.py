@@ -59,7 +59,9 @@ def register_maps(sub) -> None:
                        "(8-bit grey, GGX alpha). With --direction, also material_000.png, ... : "
                        "the model relit at each direction with the diffuse albedo and the "
                        "specular lobe scaled (RTI viewers' specular enhancement), at the "
-                       "albedo map's exposure.")
+                       "albedo map's exposure. Exposure: these images are scaled for display "
+                       "(each map to its own white, the material images to the albedo map's), "
+                       "not written at the capture's exposure as ltm relight's are.")
     p.add_argument("store")
     p.add_argument("output", metavar="OUT_DIR", help="folder to create")
     p.add_argument("--direction", type=numbers("LX,LY,LZ", "a direction"), action="append",
@@ -112,10 +114,10 @@ def cmd_view(a: argparse.Namespace) -> None:
 
     check_host(a.host)
     server = make_server(a.store, host=a.host, port=a.port)
-    print(f"ltm view: serving {a.store} at {server.url} (Ctrl-C to stop)", flush=True)
-    if a.open:
-        webbrowser.open(server.url)
-    try:
+    try:  # a Ctrl-C right after the URL is shown stops as cleanly as a later one
+        print(f"ltm view: serving {a.store} at {server.url} (Ctrl-C to stop)", flush=True)
+        if a.open:
+            webbrowser.open(server.url)
         server.serve_forever()
     except KeyboardInterrupt:
         print("ltm view: stopped", file=sys.stderr)

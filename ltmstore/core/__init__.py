@@ -1,5 +1,6 @@
 """What everything stands on: dimension names and the lattice, the store (Zarr plan, open and
-create, stage records), provenance, errors, transfer functions, operators and the Dask cluster.
+create, stage records), provenance, errors, transfer functions, operators, the Dask cluster
+and image files written whole or not at all (``imagefile``).
 
 ``core`` imports nothing else of ltmstore: every other subpackage may import it.
 """

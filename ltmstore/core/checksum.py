@@ -3,7 +3,8 @@
 Arrays are written with Zarr v3's ``crc32c`` codec last in their codec pipeline (inside each shard
 for sharded arrays, whose index has its own), so a flipped byte makes the read fail instead of
 returning a wrong value. Every chunk is written, even one that holds only the fill value, so a
-missing chunk file is damage too. Stores written before this carry no checksums: they still open,
+missing chunk file is damage too (:mod:`ltmstore.core.integrity` finds it, and the rest of what
+shows without reading). Stores written before this carry no checksums: they still open,
 and only their missing metadata can be found.
 """
 
@@ -12,7 +13,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -75,53 +75,28 @@ def group_damage(root: Path) -> str | None:
     return None
 
 
-def structure_damage(root: Path, *, complete: Callable[[str], bool]) -> list[str]:
-    """Damage found without reading data: unreadable metadata, missing chunk files.
-
-    Parameters
-    ----------
-    root : Path
-        The store folder.
-    complete : callable
-        ``complete(name)``: whether variable ``name`` belongs to a completed stage (only those
-        must have every chunk).
-    """
-    damage = [d for d in [group_damage(root)] if d]
-    for name, folder in arrays(root):
-        array, why = _open(folder)
-        if why:
-            damage.append(why)
-            continue
-        if not (has_checksums(array) and complete(name)):
-            continue
-        _, counts = _grid(array)
-        for index in itertools.product(*map(range, counts)):
-            if not os.path.exists(root / _key(name, index)):
-                damage.append(f"{_key(name, index)} is missing")
-    return damage
-
-
-def parts(root: Path) -> int:
-    """How many stored parts :func:`verify` reads."""
+def parts(root: Path, names: list[str]) -> int:
+    """How many stored parts :func:`verify` reads of the arrays ``names``."""
     total = 0
-    for _, folder in arrays(root):
-        array, _ = _open(folder)
+    for name in names:
+        array, _ = _open(root / name)
         if array is not None:
             total += math.prod(_grid(array)[1])
     return total
 
 
-def verify(root: Path, *, complete: Callable[[str], bool],
+def verify(root: Path, names: list[str],
            advance: Callable[[], object] = lambda: None) -> tuple[list[str], list[str]]:
-    """Read every chunk of every array of the store at ``root`` and check its checksum.
+    """Read every chunk of the arrays ``names`` of the store at ``root``; check its checksum.
 
     Returns ``(damage, unchecked)``: one line per damaged part, and the arrays that carry no
-    checksums. ``advance()`` is called after each part (a progress bar).
+    checksums. ``advance()`` is called after each part (a progress bar). The damage that shows
+    without reading (:mod:`ltmstore.core.integrity`) is found before.
     """
-    damage = structure_damage(root, complete=complete)
+    damage = []
     unchecked = []
-    for name, folder in arrays(root):
-        array, _ = _open(folder)
+    for name in names:
+        array, _ = _open(root / name)
         if array is None:
             continue
         if not has_checksums(array):

@@ -1,4 +1,9 @@
-"""The Dask cluster a run uses: a throwaway local one, or an existing scheduler."""
+"""The Dask cluster a run uses: a throwaway local one, or an existing scheduler.
+
+A local cluster listens on loopback only (127.0.0.1): its comms, its scheduler's and workers'
+HTTP servers (``/health``, ``/metrics``, the dashboard). Another machine reaches a cluster only
+through one the user started and named (``--scheduler``).
+"""
 
 from __future__ import annotations
 
@@ -14,6 +19,10 @@ from ltmstore.core.errors import LtmError
 # One BLAS/FFT thread per worker process: the parallelism is across pixel tiles.
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 SCHEDULER_TIMEOUT_S = 10.0  # an unreachable scheduler fails within this many seconds
+LOOPBACK = "127.0.0.1"
+# Every HTTP server of a local cluster on a free loopback port: Dask's defaults (":8787", or the
+# comm's host, which an in-process cluster has none of) listen on every interface.
+LOOPBACK_HTTP = {"dashboard_address": f"{LOOPBACK}:0", "worker_dashboard_address": f"{LOOPBACK}:0"}
 
 
 @contextmanager
@@ -43,17 +52,17 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
         return
     n = n_workers or max(1, min(4, os.cpu_count() or 1))
     if small:
+        # in-process comms (no socket); the HTTP servers on loopback
         with LocalCluster(n_workers=1, threads_per_worker=n, processes=False,
-                          dashboard_address=None, silence_logs=logging.CRITICAL
+                          silence_logs=logging.CRITICAL, **LOOPBACK_HTTP
                           ) as cluster, Client(cluster) as client:
             yield client
         return
-    # The scheduler's HTTP port on any free port (never a collision warning); worker logs
-    # quiet: a task's error reaches the client, which reports it as one line, so the worker's
-    # own traceback log is noise.
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      dashboard_address="127.0.0.1:0", env=WORKER_ENV,
-                      silence_logs=logging.CRITICAL
+    # The HTTP servers on any free port (never a collision warning); worker logs quiet: a
+    # task's error reaches the client, which reports it as one line, so the worker's own
+    # traceback log is noise.
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
+                      env=WORKER_ENV, silence_logs=logging.CRITICAL, **LOOPBACK_HTTP
                       ) as cluster, Client(cluster) as client:
         yield client
 

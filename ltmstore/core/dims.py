@@ -13,6 +13,7 @@ Conventions
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +45,13 @@ CHROMA = "chroma"  # (y, x, channel) chroma as a ratio to luminance (illuminatio
 CHROMA_SPREAD = "chroma_spread"  # (y, x, channel) how much that ratio varies with the light
 LTM_RGB = "ltm_rgb"  # (y, x, r, s, color) ground truth colour LTM (simulations only)
 
+# Plane ranges (plane units, metres by default): beyond these magnitudes the lattice's float
+# arithmetic (cell sides, centres, light distances) overflows or loses every digit of the cells.
+MAX_COORD = 1e6
+MIN_WIDTH = 1e-6
+# The most cells of a lattice: a flat cell index must fit an int64.
+MAX_CELLS = 2**62
+
 # BT.601 luma weights; chroma scales so that R = Y + 1.402 Cr, B = Y + 1.772 Cb.
 LUMA = np.array([0.299, 0.587, 0.114])
 
@@ -71,6 +79,29 @@ def ycbcr_to_rgb(ycc: np.ndarray) -> np.ndarray:
     return np.stack(rgb_from_ycbcr(ycc[..., 0], ycc[..., 1], ycc[..., 2]), axis=-1)
 
 
+def check_range(what: str, lo: float, hi: float) -> None:
+    """Refuse a plane range ``[lo, hi]`` that a lattice cannot divide.
+
+    Parameters
+    ----------
+    what : str
+        The range's name for the message (e.g. ``"plane r"``).
+    lo, hi : float
+        The range's ends, plane units.
+
+    Raises
+    ------
+    LtmError
+        Unless both ends are finite, within :data:`MAX_COORD` of 0, and ``hi - lo`` is at least
+        :data:`MIN_WIDTH`.
+    """
+    if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+        raise LtmError(f"{what} range {[lo, hi]} must be two finite numbers, min < max")
+    if max(abs(lo), abs(hi)) > MAX_COORD or hi - lo < MIN_WIDTH:
+        raise LtmError(f"{what} range {[lo, hi]} must lie within [-{MAX_COORD:g}, "
+                       f"{MAX_COORD:g}] plane units and be at least {MIN_WIDTH:g} wide")
+
+
 @dataclass(frozen=True)
 class Plane:
     """A rectangle ``[r0, r1] x [s0, s1]`` at height ``height`` above the object (plane units)."""
@@ -82,11 +113,10 @@ class Plane:
 
     def __post_init__(self) -> None:
         for name, (lo, hi) in (("r", self.r), ("s", self.s)):
-            if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
-                raise LtmError(
-                    f"plane {name} range {[lo, hi]} must be two finite numbers, min < max")
-        if not (np.isfinite(self.height) and self.height > 0):
-            raise LtmError(f"plane height {self.height!r} must be a positive number")
+            check_range(f"plane {name}", lo, hi)
+        if not (np.isfinite(self.height) and 0 < self.height <= MAX_COORD):
+            raise LtmError(f"plane height {self.height!r} must be a positive number of at most "
+                           f"{MAX_COORD:g} plane units")
 
     @property
     def area(self) -> float:
@@ -144,6 +174,11 @@ class Lattice:
             raise LtmError(f"lattice dims {self.dims}, bounds and shape {self.shape} must agree")
         if any(int(n) < 1 for n in self.shape):
             raise LtmError(f"lattice shape {self.shape} must have at least one cell per axis")
+        cells = math.prod(int(n) for n in self.shape)
+        if cells > MAX_CELLS:
+            shape = "x".join(str(n) if n < 10**12 else approx(n) for n in map(int, self.shape))
+            raise LtmError(f"lattice {shape} has {approx(cells)} cells; "
+                           "expected at most 2**62 (a cell index must fit 64 bits)")
 
     @classmethod
     def from_plane(cls, plane: Plane, shape: tuple[int, int]) -> Lattice:
@@ -153,17 +188,12 @@ class Lattice:
     @classmethod
     def from_delta(cls, plane: Plane, delta: float) -> Lattice:
         """Cells of side about ``delta`` (rounded so that a whole number fits each axis)."""
-        if not (np.isfinite(delta) and delta > 0):
-            raise LtmError(f"--delta-rs {delta!r} must be a positive number (plane units)")
-        shape = tuple(
-            max(1, int(round((hi - lo) / delta))) for lo, hi in (plane.r, plane.s)
-        )
-        return cls.from_plane(plane, shape)
+        return cls.from_plane(plane, cells_of_delta((plane.r, plane.s), delta))
 
     @property
     def size(self) -> int:
         """``M``: the number of cells."""
-        return int(np.prod(self.shape))
+        return math.prod(int(n) for n in self.shape)
 
     @property
     def deltas(self) -> tuple[float, ...]:
@@ -199,6 +229,31 @@ class Lattice:
     def to_json(self) -> dict:
         return {"dims": list(self.dims), "bounds": [list(b) for b in self.bounds],
                 "shape": list(self.shape), "deltas": list(self.deltas)}
+
+
+def approx(n: int) -> str:
+    """A count of any size in three digits (``1e+10``, or ``10**600`` beyond floats)."""
+    return f"{n:.3g}" if n < 1e300 else f"10**{int(math.log10(n))}"
+
+
+def cells_of_delta(bounds: tuple[tuple[float, float], ...], delta: float) -> tuple[int, ...]:
+    """Cells per axis of side about ``delta`` over ``bounds`` (``--delta-rs``).
+
+    Raises
+    ------
+    LtmError
+        If ``delta`` is not a positive number, or the cells would be more than
+        :data:`MAX_CELLS` (``--delta-rs 1e-300``), naming the count.
+    """
+    if not (np.isfinite(delta) and delta > 0):
+        raise LtmError(f"--delta-rs {delta!r} must be a positive number (plane units)")
+    counts = [(hi - lo) / delta for lo, hi in bounds]
+    if not all(math.isfinite(n) and n <= MAX_CELLS for n in counts) \
+            or math.prod(max(1.0, n) for n in counts) > MAX_CELLS:
+        cells = " x ".join(f"{n:.3g}" for n in counts)
+        raise LtmError(f"--delta-rs {delta!r} cuts the plane into {cells} cells; expected at "
+                       "most 2**62 in all (a larger cell size)")
+    return tuple(max(1, int(round(n))) for n in counts)
 
 
 def parse_lattice(text: str) -> tuple[int, ...]:

@@ -23,12 +23,15 @@ from __future__ import annotations
 import numpy as np
 
 from ltmstore.core.dims import Plane
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, brief
 
 NEAR, FAR = "near", "far"
 KIND_ATTR = "light_kind"  # acquisition attribute: "near" (default, handheld) or "far"
 # The "plane" of a far-light store: the square of direction cosines (lx, ly) that holds the disk.
 DISK = Plane(r=(-1.0, 1.0), s=(-1.0, 1.0), height=1.0, unit="1")
+# The largest light value a user may give: a position in plane units (a near light a thousand
+# kilometres away is a far light), or a direction's component.
+MAX_LIGHT_VALUE = 1e6
 
 
 def light_kind(acquisition: dict) -> str:
@@ -52,12 +55,56 @@ def normalise(directions) -> np.ndarray:
     """Unit vectors ``(n, 3)`` from any non-zero finite vectors ``(n, 3)`` or ``(3,)``."""
     d = np.atleast_2d(np.asarray(directions, dtype=np.float64))
     if d.shape[-1] != 3 or not np.isfinite(d).all():
-        raise LtmError(f"direction {np.asarray(directions).tolist()!r} must be finite "
+        raise LtmError(f"direction {brief(directions)} must be finite "
                        "LX,LY,LZ triples")
-    norm = np.linalg.norm(d, axis=-1, keepdims=True)
-    if (norm == 0).any():
+    scale = np.abs(d).max(axis=-1, keepdims=True)  # first: 1e300 or 1e-320 stay in range
+    if (scale == 0).any():
         raise LtmError("a light direction must not be the zero vector")
-    return d / norm
+    d = d / scale
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def check_light(values, what: str, names: tuple[str, ...]) -> np.ndarray:
+    """Lights as a user gives them, refused unless finite and of a sane magnitude.
+
+    Parameters
+    ----------
+    values : array_like
+        One light or ``(n, len(names))`` of them.
+    what : str
+        ``"light"`` or ``"direction"``, for the message.
+    names : tuple of str
+        The components (``("r", "s")``, ``("lx", "ly", "lz")``).
+
+    Returns
+    -------
+    ndarray
+        ``(n, len(names))`` float64.
+
+    Raises
+    ------
+    LtmError
+        Naming the light and the component that is not finite or beyond
+        :data:`MAX_LIGHT_VALUE` in magnitude, or the values when they are not such numbers.
+    """
+    try:
+        v = np.atleast_2d(np.asarray(values, dtype=np.float64))
+    except (TypeError, ValueError):
+        v = np.empty((0, 0))
+    if v.ndim != 2 or v.shape[-1] != len(names) or not v.size:
+        raise LtmError(f"{what} {brief(values)} must be {','.join(names).upper()} numbers")
+    for light in v:
+        text = ", ".join(f"{x:g}" for x in light)
+        for name, x in zip(names, light, strict=True):
+            if not np.isfinite(x):
+                raise LtmError(f"{what} ({text}): {name} = {x:g} must be finite")
+            if abs(x) > MAX_LIGHT_VALUE:
+                raise LtmError(f"{what} ({text}): {name} = {x:g} must be at most "
+                               f"{MAX_LIGHT_VALUE:g} in magnitude; expected "
+                               + ("a position near the plane (plane units)" if what == "light"
+                                  else "components of a sane size (a direction's length does "
+                                  "not matter)"))
+    return v
 
 
 def above_horizon(directions: np.ndarray) -> np.ndarray:

@@ -1,8 +1,9 @@
 """One writer at a time: an advisory lock file holding its owner's pid and host.
 
-The lock is :func:`fcntl.flock` on a file beside what it guards; the kernel releases it when its
-owner dies (even by SIGKILL), so the lock of a dead process is simply taken over. The file
-records who holds it, for the second writer's one-line error.
+The lock is :func:`fcntl.flock` on a file beside what it guards, at its resolved path (two names
+of one store meet at one lock); the kernel releases it when its owner dies (even by SIGKILL), so
+the lock of a dead process is simply taken over. The file records who holds it, for the second
+writer's one-line error.
 """
 
 from __future__ import annotations
@@ -19,8 +20,12 @@ from ltmstore.core.errors import LtmError
 
 
 def lock_path(path: str | os.PathLike) -> Path:
-    """The lock file of the store (or folder) at ``path``: a hidden file beside it."""
-    path = Path(os.path.abspath(path))
+    """The lock file of the store (or folder) at ``path``: a hidden file beside it.
+
+    ``path`` is resolved first (symbolic links, ``..``, the working folder), so every name of
+    one store (a link to it, a relative path) has the same lock file.
+    """
+    path = Path(os.path.realpath(path))
     return path.parent / f".{path.name}.lock"
 
 

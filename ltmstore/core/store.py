@@ -23,7 +23,7 @@ import zarr
 from zarr.abc.store import Store
 from zarr.storage import WrapperStore
 
-from ltmstore.core import checksum
+from ltmstore.core import checksum, integrity
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lock import locked
 from ltmstore.core.provenance import software, summary
@@ -120,8 +120,11 @@ def is_ltm_store(path: Path) -> bool:
 @contextmanager
 def writing(path: str | os.PathLike) -> Iterator[Path]:
     """Hold the write lock of an existing store for the body, after finishing (or rolling back)
-    a swap a killed process left and removing dead processes' leftovers beside it."""
-    path = Path(os.path.abspath(path))
+    a swap a killed process left and removing dead processes' leftovers beside it.
+
+    Yields the store's resolved path (through symbolic links): where its swaps happen.
+    """
+    path = Path(os.path.realpath(path))
     with locked(path):
         recover(path)
         remove_leftovers(path)
@@ -148,27 +151,39 @@ def remove_leftovers(path: Path) -> None:
 
 
 def revision_path(path: str | os.PathLike) -> Path:
-    """Where :func:`revised_store` builds the next version of the store at ``path``."""
-    path = Path(path)
+    """Where :func:`revised_store` builds the next (resumable) version of the store at ``path``
+    (beside its resolved path)."""
+    path = Path(os.path.realpath(path))
     return path.parent / f".{path.name}.revising"
 
 
 @contextmanager
-def revised_store(path: str | os.PathLike) -> Iterator[Path]:
+def revised_store(path: str | os.PathLike, *, resumable: bool = True) -> Iterator[Path]:
     """Revise an existing store on a linked copy beside it; swap the copy in only on success.
 
-    The copy (:func:`revision_path`) hard-links the store's files (no data is copied; Zarr
-    replaces a file it rewrites rather than writing into it) and copies its metadata. The body
-    gets the copy's path. If the body raises, the copy is removed and the store at ``path`` is
-    untouched; if the process is killed, the copy stays for a later revision to resume. A copy
-    left by an earlier run is reused when it holds the same ingest.
+    The copy hard-links the store's files (no data is copied; Zarr replaces a file it rewrites
+    rather than writing into it) and copies its metadata. The body gets the copy's path. If the
+    body raises, the copy is removed and the store at ``path`` (resolved through symbolic
+    links) is untouched.
+
+    Parameters
+    ----------
+    path : path-like
+        The store; the caller holds its write lock (:func:`writing`).
+    resumable : bool
+        The copy is :func:`revision_path`: a killed process leaves it for a later revision to
+        resume, which reuses it when it holds the same ingest (record and variables). Otherwise
+        the copy is a fresh one that the next writer removes (:func:`remove_leftovers`), never
+        reused: a revision that is not resumable (``ltm compact``) cannot be mistaken for one
+        that is, nor the other way round.
     """
-    path = Path(path)
-    side = revision_path(path)
+    path = Path(os.path.realpath(path))
+    side = (revision_path(path) if resumable
+            else path.parent / f".{path.name}.partial-copy-{os.getpid()}")
     if not os.access(path.parent, os.W_OK):
         raise LtmError(f"cannot revise store {str(path)!r}: folder {str(path.parent)!r} is "
                        "not writable")
-    if side.exists() and not _same_ingest(path, side):
+    if side.exists() and not (resumable and _same_ingest(path, side)):
         shutil.rmtree(side)
     try:
         if not side.exists():
@@ -181,9 +196,13 @@ def revised_store(path: str | os.PathLike) -> Iterator[Path]:
 
 
 def _same_ingest(a: Path, b: Path) -> bool:
+    """Whether the store ``b`` holds the ingest of the store ``a``: its record and every one of
+    its variables that ``a`` holds."""
     try:
-        return stages(open_group(b, mode="r")).get("ingest") == stages(
-            open_group(a, mode="r")).get("ingest")
+        group_a, group_b = open_group(a, mode="r"), open_group(b, mode="r")
+        return (stages(group_b).get("ingest") == stages(group_a).get("ingest")
+                and all(name in group_b for name in STAGE_VARIABLES["ingest"]
+                        if name in group_a))
     except (LtmError, OSError, ValueError):
         return False
 
@@ -219,7 +238,7 @@ def open_group(path: str | os.PathLike | Store, *, mode: str = "r") -> zarr.Grou
     if isinstance(path, Store):
         return zarr.open_group(store=path, mode=mode, zarr_format=3)
     path = Path(path)
-    _recover_unlocked(Path(os.path.abspath(path)))
+    _recover_unlocked(Path(os.path.realpath(path)))
     if not (path / "zarr.json").is_file():
         raise LtmError(f"store {str(path)!r} does not exist or is not a Zarr v3 store")
     try:
@@ -351,7 +370,7 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     group = open_group(path)
     if not isinstance(path, Store):
         _refuse_damaged(Path(path), group)
-        if not checksummed(group):
+        if not checksummed(Path(path)):
             warnings.warn(f"store {str(path)!r} {checksum.NO_CHECKSUMS}", NoChecksumWarning,
                           stacklevel=2)
     ds = xr.open_zarr(path if isinstance(path, Store) else str(path), consolidated=False,
@@ -384,7 +403,7 @@ def store_summary(path: str | os.PathLike) -> dict:
         attrs = group.attrs.asdict()
     except (OSError, ValueError) as exc:
         raise LtmError(f"store {str(path)!r} cannot be read: {exc}") from exc
-    info = {"store": str(path), **summary(attrs), "checksums": checksummed(group)}
+    info = {"store": str(path), **summary(attrs), "checksums": checksummed(Path(path))}
     damaged = damage(Path(path), group)
     if damaged:
         info.update(complete=False, damaged=damaged)
@@ -395,9 +414,10 @@ class NoChecksumWarning(UserWarning):
     """A store written before chunks carried checksums: damage to its data cannot be found."""
 
 
-def checksummed(group: zarr.Group) -> bool:
-    """Whether the store's frames (the first array every store has) carry checksums."""
-    return "frames" not in group or checksum.has_checksums(group["frames"])
+def checksummed(path: Path) -> bool:
+    """Whether the store at ``path`` carries checksums (any of its arrays: then every one must,
+    :mod:`ltmstore.core.integrity`), or holds no array yet."""
+    return integrity.checksummed(path)
 
 
 def _complete_variables(group: zarr.Group) -> Callable[[str], bool]:
@@ -408,8 +428,13 @@ def _complete_variables(group: zarr.Group) -> Callable[[str], bool]:
 
 
 def damage(path: Path, group: zarr.Group) -> list[str]:
-    """Damage found without reading data (:func:`ltmstore.core.checksum.structure_damage`)."""
-    return checksum.structure_damage(path, complete=_complete_variables(group))
+    """Damage found without reading data (:func:`ltmstore.core.integrity.inspect`): what a
+    complete store must hold and does not, or holds in the wrong shape."""
+    return _inspect(path, group).lines
+
+
+def _inspect(path: Path, group: zarr.Group) -> integrity.Report:
+    return integrity.inspect(path, group.attrs.asdict(), complete=_complete_variables(group))
 
 
 def _refuse_damaged(path: Path, group: zarr.Group) -> None:
@@ -436,8 +461,12 @@ def verify_store(path: str | os.PathLike, *, progress: bool = True) -> dict:
     if problem:
         return {"store": str(path), "parts": 0, "damaged": [problem], "unchecked": []}
     group = open_group(path)
-    with tqdm(total=checksum.parts(path), desc="check", unit="part",
+    found = _inspect(path, group)
+    readable = [name for name, _ in checksum.arrays(path) if name not in found.broken]
+    with tqdm(total=checksum.parts(path, readable), desc="check", unit="part",
               disable=not progress) as bar:
-        damaged, unchecked = checksum.verify(path, complete=_complete_variables(group),
-                                             advance=bar.update)
-    return {"store": str(path), "parts": bar.n, "damaged": damaged, "unchecked": unchecked}
+        damaged, unchecked = checksum.verify(path, readable, advance=bar.update)
+    if checksummed(path):  # an array without checksums among checksummed ones is damage
+        unchecked = []
+    return {"store": str(path), "parts": bar.n, "damaged": found.lines + damaged,
+            "unchecked": unchecked}

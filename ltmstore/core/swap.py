@@ -18,8 +18,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 FSYNC_THREADS = 8
-# Tests only: seconds to pause between the two renames (to kill the process there).
+# Tests only: seconds to pause between the two renames (to kill the process there), and before
+# the swap begins (the new store complete beside the old one, which is still in place).
 PAUSE_ENV = "LTM_TEST_SWAP_PAUSE_S"
+PAUSE_BEFORE_ENV = "LTM_TEST_SWAP_PAUSE_BEFORE_S"
 
 
 def journal_path(path: Path) -> Path:
@@ -35,12 +37,13 @@ def swap_in(side: Path, path: Path) -> None:
     """
     side, path = Path(os.path.abspath(side)), Path(os.path.abspath(path))
     old = path.parent / f".{path.name}.old-{os.getpid()}"
+    _pause(PAUSE_BEFORE_ENV)
     fsync_tree(side)
     journal = journal_path(path)
     _write_durably(journal, json.dumps({"side": str(side), "old": str(old)}))
     if path.exists():
         path.rename(old)
-    _pause()
+    _pause(PAUSE_ENV)
     try:
         side.rename(path)
     except OSError:
@@ -117,7 +120,7 @@ def _write_durably(file: Path, text: str) -> None:
     fsync_dir(file.parent)
 
 
-def _pause() -> None:
-    seconds = float(os.environ.get(PAUSE_ENV, "0") or 0)
+def _pause(variable: str) -> None:
+    seconds = float(os.environ.get(variable, "0") or 0)
     if seconds > 0:
         time.sleep(seconds)

@@ -7,6 +7,9 @@ import numpy as np
 from ltmstore.core.errors import LtmError
 
 TRANSFERS = ("srgb", "linear")
+CAPTURE, AUTO = "capture", "auto"
+EXPOSURES = (CAPTURE, AUTO)  # how linear light is put on 8-bit images (see encode_images)
+EV_LIMIT = 20.0  # stops: beyond this either way every image is black or white
 
 
 # Both curves work in float32 in place (one output array, no temporaries): they run on every
@@ -59,7 +62,56 @@ def encode(linear: np.ndarray, transfer: str) -> np.ndarray:
     return np.round(np.asarray(v) * 255).astype(np.uint8)
 
 
-def encode_images(images: np.ndarray, transfer: str) -> np.ndarray:
-    """Linear RGB images ``(n, y, x, 3)`` to 8-bit, scaled so the brightest 0.5% clip."""
-    scale = max(float(np.percentile(images, 99.5)), 1e-12)
-    return encode(images / scale, transfer)
+def check_exposure(exposure: str, ev: float = 0.0) -> tuple[str, float]:
+    """``(exposure, ev)`` checked: ``exposure`` one of :data:`EXPOSURES`, ``ev`` a finite
+    number of stops within ``[-EV_LIMIT, EV_LIMIT]`` (as a float)."""
+    if exposure not in EXPOSURES:
+        raise LtmError(f"exposure {exposure!r} is unknown; expected one of "
+                       f"{', '.join(EXPOSURES)}")
+    try:
+        stops = float(ev)
+    except (TypeError, ValueError):
+        stops = float("nan")
+    if not (np.isfinite(stops) and abs(stops) <= EV_LIMIT):
+        raise LtmError(f"ev {ev!r} must be a finite number of stops from {-EV_LIMIT:g} to "
+                       f"{EV_LIMIT:g}")
+    return exposure, stops
+
+
+def exposure_gain(images: np.ndarray, exposure: str = CAPTURE, ev: float = 0.0) -> float:
+    """The factor on linear values that puts ``images`` at ``exposure``, ``ev`` stops brighter:
+    ``2**ev`` at the capture's exposure, ``2**ev / p`` for ``auto`` (``p`` the images' 99.5th
+    percentile: the brightest 0.5 % clip)."""
+    exposure, stops = check_exposure(exposure, ev)
+    gain = 2.0 ** stops
+    if exposure == AUTO:
+        gain /= max(float(np.percentile(images, 99.5)), 1e-12)
+    return gain
+
+
+def encode_images(images: np.ndarray, transfer: str, *, exposure: str = CAPTURE,
+                  ev: float = 0.0) -> np.ndarray:
+    """Linear RGB images ``(n, y, x, 3)`` (or any shape) to 8-bit code values.
+
+    Parameters
+    ----------
+    images : numpy.ndarray
+        Linear light, as :func:`ltmstore.relight` returns it.
+    transfer : str
+        The capture's transfer function (one of :data:`TRANSFERS`).
+    exposure : {"capture", "auto"}
+        ``capture`` (default, photometric): the linear values as they are, so that an image
+        relit at a light of the capture has that photograph's (or video frame's) brightness, a
+        dimmer light gives a dimmer image and light beyond white clips, as in a camera.
+        ``auto``: all ``images`` scaled by one factor so that their brightest 0.5 % clip.
+    ev : float
+        Stops added to that exposure (linear values times ``2**ev``), at most
+        :data:`EV_LIMIT` either way.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``uint8`` code values, the shape of ``images``.
+    """
+    return encode(np.asarray(images) * np.float32(exposure_gain(images, exposure, ev)),
+                  transfer)

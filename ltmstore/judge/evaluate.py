@@ -12,16 +12,18 @@ For captures without a ground truth, see :mod:`ltmstore.judge.heldout` (held-out
 from __future__ import annotations
 
 import os
+from functools import partial
 
 import numpy as np
 import xarray as xr
 
-from ltmstore.core.dims import LTM, X, Y
+from ltmstore.core.dims import LIGHT_DIMS, LTM, X, Y
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
 from ltmstore.stages.relight import linear_position
 
 MEAN_ABS_ERROR, VAR_ABS_ERROR = "mean_abs_error", "var_abs_error"
+BLOCK_VALUES = 2**21  # lattice values of one pixel block (16 MB per float64 copy)
 
 
 def _data(x):
@@ -96,7 +98,7 @@ def error_maps(truth, estimate) -> xr.Dataset:
 
     Parameters
     ----------
-    truth, estimate : array_like, shape (y, x, *lattice)
+    truth, estimate : array_like, shape ``(y, x, *lattice)``
         NumPy, Dask or xarray; Dask inputs are reduced in one pass.
 
     Returns
@@ -177,24 +179,102 @@ def interpolation_weights(centres: np.ndarray, points: np.ndarray) -> np.ndarray
     return weights
 
 
+def _operators(estimate: xr.DataArray, truth: xr.DataArray) -> list[np.ndarray | None]:
+    """Per lattice axis of ``truth``: the ``(truth cells, estimate cells)`` interpolation matrix
+    (:func:`interpolation_weights`), or None where both have the same cells."""
+    return [None if _same_cells(estimate, truth, dim) else
+            interpolation_weights(estimate[dim].values, truth[dim].values)
+            for dim in truth.dims[2:]]
+
+
+def _interpolate(block: np.ndarray, operators: list[np.ndarray | None]) -> np.ndarray:
+    """A ``(y, x, *lattice)`` block at the truth's cells: each operator applied along its axis
+    (in float64, as ``xr.dot`` with float64 weights), the result in float32."""
+    out = block
+    for axis, weights in enumerate(operators, start=2):
+        if weights is not None:
+            out = np.moveaxis(np.tensordot(out, weights, axes=([axis], [1])), -1, axis)
+    return out.astype(np.float32)
+
+
+def _pixel_chunks(array, values_per_pixel: int) -> dict[int, int]:
+    """Chunks of whole lattices: the array's own pixel chunk (a whole tile), halved along its
+    longer side while one block would hold more than :data:`BLOCK_VALUES` values."""
+    by, bx = (array.chunksize[:2] if hasattr(array, "chunksize") else array.shape[:2])
+    while by * bx * values_per_pixel > BLOCK_VALUES and max(by, bx) > 1:
+        by, bx = (-(-by // 2), bx) if by >= bx else (by, -(-bx // 2))
+    return {0: by, 1: bx, **{axis: -1 for axis in range(2, array.ndim)}}
+
+
+def _by_pixel_blocks(estimate: xr.DataArray, truth: xr.DataArray):
+    """The Dask arrays of ``truth`` and ``estimate`` (in the truth's dim order) in the same
+    pixel blocks of whole lattices: one block per tile, so a graph over them has a few tasks
+    per chunk read, whatever the number of cells."""
+    import dask.array as da
+
+    lattice = int(np.prod([max(truth.sizes[d], estimate.sizes[d]) for d in truth.dims[2:]]))
+    chunks = _pixel_chunks(_data(estimate), lattice)
+    return tuple(da.asarray(_data(x)).rechunk(chunks)
+                 for x in (truth, estimate.transpose(*truth.dims)))
+
+
 def at_cells(estimate: xr.DataArray, truth: xr.DataArray) -> xr.DataArray:
     """``estimate`` at the lattice cells of ``truth``: linear along every lattice axis that
-    differs (bilinear in ``(r, s)`` and in ``(p, q)``, as relight interpolates); lazy."""
-    for dim in truth.dims[2:]:
-        if _same_cells(estimate, truth, dim):
-            continue
-        weights = xr.DataArray(interpolation_weights(estimate[dim].values, truth[dim].values),
-                               dims=("cell", dim))
-        estimate = (xr.dot(estimate, weights, dim=dim).rename(cell=dim)
-                    .assign_coords({dim: truth[dim].values}))
-    return estimate.transpose(*truth.dims).astype(np.float32)
+    differs (bilinear in ``(r, s)`` and in ``(p, q)``, as relight interpolates); float32, lazy
+    for a Dask-backed ``estimate`` (one task per pixel block of whole lattices)."""
+    operators = _operators(estimate, truth)
+    coords = {d: truth[d].values for d in truth.dims[2:]}
+    coords.update({d: estimate[d].values for d in truth.dims[:2] if d in estimate.coords})
+    if not hasattr(_data(estimate), "dask"):
+        values = _interpolate(estimate.transpose(*truth.dims).values, operators)
+        return xr.DataArray(values, dims=truth.dims, coords=coords)
+    _, data = _by_pixel_blocks(estimate, truth)
+    values = data.map_blocks(_interpolate, operators, dtype=np.float32,
+                             chunks=(*data.chunks[:2], *((n,) for n in truth.shape[2:])))
+    return xr.DataArray(values, dims=truth.dims, coords=coords)
+
+
+def _block_stats(truth: np.ndarray, estimate: np.ndarray, *, operators: list,
+                 cells: list[tuple[int, ...]]) -> np.ndarray:
+    """Per pixel of a block (``(y, x, *lattice)`` each), float64 ``(y, x, 4 + 2 len(cells))``:
+    mean and variance of ``|T - T_hat|`` over the lattice, ``sum T^2``, ``sum (T - T_hat)^2``,
+    then for each cell (an index tuple into the lattice) the mean of ``(T - T_hat)^2`` and
+    the maximum of ``T`` over the lattice axes left (``(p, q)`` in 6D)."""
+    estimate = _interpolate(estimate, operators)
+    axes = tuple(range(2, truth.ndim))
+    diff = truth - estimate  # in float32, as snr_db
+    err = truth.astype(np.float64) - estimate.astype(np.float64)
+    out = [np.abs(err).mean(axis=axes), np.abs(err).var(axis=axes),
+           (truth.astype(np.float64) ** 2).sum(axis=axes),
+           (diff.astype(np.float64) ** 2).sum(axis=axes)]
+    rest = tuple(range(2, truth.ndim - len(cells[0])))
+    for cell in cells:
+        at = (slice(None), slice(None), *cell)
+        out += [(err[at] ** 2).mean(axis=rest), truth[at].astype(np.float64).max(axis=rest)]
+    return np.stack(out, axis=-1)
+
+
+def _pixel_stats(estimate: xr.DataArray, truth: xr.DataArray,
+                 cells: list[tuple[int, int]]):
+    """Lazy ``(y, x, 4 + 2 len(cells))`` :func:`_block_stats` of ``estimate`` at the truth's
+    cells, one task per pixel block (the truth's ``r, s`` must lead its lattice axes)."""
+    import dask.array as da
+
+    ref, est = _by_pixel_blocks(estimate, truth)
+    n = ref.ndim
+    return da.blockwise(partial(_block_stats, operators=_operators(estimate, truth), cells=cells),
+                        (0, 1, n + n), ref, tuple(range(n)), est, (0, 1, *range(n, 2 * n - 2)),
+                        new_axes={n + n: 4 + 2 * len(cells)}, concatenate=True,
+                        dtype=np.float64)
 
 
 def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -> dict:
     """A reconstructed store against a ground-truth store, at the truth's lattice cells.
 
     A store reconstructed on another lattice (the automatic one, say) is interpolated at the
-    truth's cell centres (:func:`at_cells`), as relight would render those lights.
+    truth's cell centres (as :func:`at_cells`), as relight would render those lights. Everything
+    is computed in one pass, one task per pixel block of whole lattices (a tile of the store):
+    the graph grows with the chunks read, not with the number of cells.
 
     Parameters
     ----------
@@ -215,12 +295,17 @@ def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -
     a, b = _open_pair(store, truth)
     interpolated = not all(_same_cells(a, b, dim) for dim in b.dims[2:])
     lattice = [a.sizes[dim] for dim in b.dims[2:]]
-    a = at_cells(a, b)
-    n, m = a.sizes["r"], a.sizes["s"]
+    b = b.transpose(Y, X, *LIGHT_DIMS, ...)
+    n, m = (b.sizes[d] for d in LIGHT_DIMS)
     cells = [(n // 2, m // 2), (n // 4, m // 4), (3 * n // 4, m // 4), (n // 4, 3 * m // 4),
              (3 * n // 4, 3 * m // 4)]
-    psnr = [psnr_db(b.isel(r=i, s=j).values, a.isel(r=i, s=j).values) for i, j in cells]
-    num, den, mean, var = _compute(*_energies(b.data, a.data), *_abs_error_moments(b.data, a.data))
+    stats = _pixel_stats(a, b, cells)
+    mean, var, sums, per_cell, peaks = _compute(
+        stats[..., 0], stats[..., 1], stats[..., 2:4].sum(axis=(0, 1)),
+        stats[..., 4::2].mean(axis=(0, 1)), stats[..., 5::2].max(axis=(0, 1)))
+    num, den = sums
+    psnr = [float(10 * np.log10(peak**2 / max(mse, 1e-300)))
+            for peak, mse in zip(peaks, per_cell, strict=True)]
     maps = _maps_dataset(mean, var, b)
     out = {"snr_y_db": _db(num, den), "psnr_db_median": float(np.median(psnr)),
            "psnr_db": psnr, "cells": cells, **summarise_maps(maps)}

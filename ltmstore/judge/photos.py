@@ -55,6 +55,15 @@ def load_photos(lp: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     return directions, np.stack([to_8bit(im) for im in images])
 
 
+def hidden_lights(n: int, every: int) -> np.ndarray:
+    """Which of ``n`` lights the ``every = k`` protocol hides: ``(n,)`` bool, true at lights
+    ``k-1, 2k-1, ...``; :class:`LtmError` unless ``k`` is a whole number from 2 to ``n``."""
+    if int(every) != every or every < 2 or every > n:
+        raise LtmError(f"--holdout-lights {every!r} must be a whole number from 2 to the "
+                       f"number of lights ({n})")
+    return np.arange(n) % int(every) == int(every) - 1
+
+
 def to_8bit(image: np.ndarray) -> np.ndarray:
     """An 8- or 16-bit image as 8-bit (16-bit values rounded to the nearest 8-bit level)."""
     if image.dtype == np.uint8:
@@ -139,10 +148,7 @@ def heldout_photos(lp: str | os.PathLike, *, every: int | None = 6,
                            f"capture's {photos.shape[1:3]}")
         protocol = f"fit on {Path(lp).parent.name}/, score on {Path(test_lp).parent.name}/"
     else:
-        if int(every) != every or every < 2 or every > len(directions):
-            raise LtmError(f"--holdout-lights {every!r} must be a whole number from 2 to the "
-                           f"number of lights ({len(directions)})")
-        hidden = np.arange(len(directions)) % every == every - 1
+        hidden = hidden_lights(len(directions), every)
         train_idx = np.flatnonzero(~hidden).tolist()
         train_dirs, train8 = directions[~hidden], photos[~hidden]
         query, truth = directions[hidden], photos[hidden]

@@ -6,15 +6,17 @@ it for relit images, one request in flight at a time:
 
 ``GET /info``
     The store's shape, light kind, plane or disk, view plane and overlays, as JSON.
-``GET /relight?u=U&v=V[&radius=R][&view=P,Q][&ev=auto|E]``
+``GET /relight?u=U&v=V[&radius=R][&view=P,Q][&ev=E|auto]``
     A PNG of the store relit by :func:`ltmstore.stages.relight.relight`. ``U, V`` in
     ``[-1, 1]`` are the pointer over the image (``U`` right, ``V`` up): for a near-light store the
     plane rectangle spans the image, for a far-light store the unit disk of ``(lx, ly)`` does
     (a direction). ``R`` (same units, 0: a point light) makes an area light: a uniform disk on the
-    plane (or a cone of directions) of the same total power. ``ev=auto`` scales each image as
-    ``ltm relight`` does (its brightest 0.5 % clip); a number fixes the exposure (stops above the
-    white of the image lit from the plane's centre). The light used is in the ``X-Ltm-Light``
-    header (JSON).
+    plane (or a cone of directions) of the same total power. ``ev=E`` (default 0) is the
+    capture's exposure ``E`` stops brighter, as ``ltm relight --ev E`` writes it (photometric:
+    the page starts there); ``ev=auto`` scales each image so that its brightest 0.5 % clip, as
+    ``ltm relight --exposure auto``. An ``E`` that is not a finite number of stops within
+    :data:`~ltmstore.core.transfer.EV_LIMIT` is answered 400. The light used is in the
+    ``X-Ltm-Light`` header (JSON).
 ``GET /expected_error.png``
     The store's ``expected_error (y, x)`` as a colour map (transparent where unknown).
 
@@ -45,7 +47,7 @@ from ltmstore.core.dims import EXPECTED_ERROR, LTM, P, Plane, Q
 from ltmstore.core.errors import LtmError, LtmWarning
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.core.store import open_store
-from ltmstore.core.transfer import encode, encode_images
+from ltmstore.core.transfer import AUTO, CAPTURE, check_exposure, encode_images
 from ltmstore.stages.by_light import by_light_name
 from ltmstore.stages.relight import disk_light, relight
 
@@ -98,12 +100,12 @@ class Viewer:
         if LTM not in ds:
             raise LtmError(f"store {str(store)!r} has no complete ltm; run `ltm reconstruct` "
                            "first")
-        if by_light_name(LTM) not in ds:
+        self.far = light_kind(ds.attrs.get("acquisition", {})) == FAR
+        if by_light_name(LTM) not in ds and not self.far:  # a far store relights from frames
             warnings.warn(f"{store}: no light-major copy of ltm, so each new light reads every "
                           "pixel tile; `ltm compact STORE` adds it", LtmWarning, stacklevel=2)
         self.ds = in_memory(ds)
         acq = self.ds.attrs.get("acquisition", {})
-        self.far = light_kind(acq) == FAR
         self.transfer = acq.get("transfer", "srgb")
         ltm = self.ds[LTM]
         r, s = ltm["r"].values, ltm["s"].values
@@ -115,9 +117,7 @@ class Viewer:
         if self.views and acq.get("view_plane"):
             self.views = {d: [float(v) for v in acq["view_plane"][d]] for d in (P, Q)}
         self._lock = threading.Lock()
-        self.white = 1.0
-        centre = self.render_linear(self.light_at(0.0, 0.0))[0]  # reads the store: fails early
-        self.white = max(float(np.percentile(centre, 99.5)), 1e-12)
+        self.render_linear(self.light_at(0.0, 0.0))  # reads the store: fails early
 
     # -- the pointer and the light ---------------------------------------------------------
 
@@ -164,14 +164,14 @@ class Viewer:
             values = image.values
         return values, sorted({str(w.message) for w in caught})
 
-    def render_png(self, light: Light, ev: float | None = None) -> tuple[bytes, list[str]]:
-        """PNG bytes of ``light``: scaled as ``ltm relight`` does (``ev`` None) or at a fixed
-        exposure ``ev`` stops above the centre light's white."""
+    def render_png(self, light: Light, ev: float | None = 0.0) -> tuple[bytes, list[str]]:
+        """PNG bytes of ``light`` as ``ltm relight`` writes them: at the capture's exposure
+        ``ev`` stops brighter (default 0: photometric), or with ``ev`` None scaled so that the
+        image's brightest 0.5 % clip (``--exposure auto``)."""
+        exposure, stops = check_exposure(AUTO if ev is None else CAPTURE,
+                                         0.0 if ev is None else ev)
         values, notes = self.render_linear(light)
-        if ev is None:
-            code = encode_images(values[None], self.transfer)[0]
-        else:
-            code = encode(values / (self.white * 2.0 ** -ev), self.transfer)
+        code = encode_images(values[None], self.transfer, exposure=exposure, ev=stops)[0]
         return png(code), notes
 
     def error_png(self) -> tuple[bytes, float]:
@@ -235,7 +235,9 @@ def parse_query(viewer: Viewer, query: str) -> tuple[Light, float | None]:
     v, = _floats(q.get("v", "0"), 1, "v")
     radius, = _floats(q.get("radius", "0"), 1, "radius")
     view = _floats(q["view"], 2, "view") if "view" in q and viewer.views else None
-    ev = None if q.get("ev", "auto") == "auto" else _floats(q["ev"], 1, "ev")[0]
+    ev = None if q.get("ev") == AUTO else _floats(q.get("ev", "0"), 1, "ev")[0]
+    if ev is not None:
+        check_exposure(CAPTURE, ev)  # a finite number of stops within EV_LIMIT, else a 400
     return viewer.light_at(u, v, radius, view), ev
 
 

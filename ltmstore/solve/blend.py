@@ -26,7 +26,7 @@ def solve(samples: np.ndarray, geometry: Geometry, *, weight: float = 0.5) -> np
 
     Parameters
     ----------
-    samples : ndarray, shape (n, *lattice)
+    samples : ndarray, shape ``(n, *lattice)``
         Binned samples, NaN where unobserved.
     geometry : Geometry
     weight : float

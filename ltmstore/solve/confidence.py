@@ -65,7 +65,7 @@ def coverage_gap(mask: np.ndarray, geometry: Geometry) -> np.ndarray:
 
     Parameters
     ----------
-    mask : ndarray of bool, shape (n, *lattice)
+    mask : ndarray of bool, shape ``(n, *lattice)``
         Observed cells.
     geometry : Geometry
 
@@ -95,7 +95,7 @@ def flag_unsupported(samples: np.ndarray, geometry: Geometry, *, min_cells: int 
 
     Parameters
     ----------
-    samples : ndarray, shape (n, *lattice)
+    samples : ndarray, shape ``(n, *lattice)``
         Binned samples, NaN where unobserved.
     geometry : Geometry
     min_cells : int
@@ -127,7 +127,7 @@ def expected_error(samples: np.ndarray, geometry: Geometry, method: str | Method
 
     Parameters
     ----------
-    samples : ndarray, shape (n, *lattice)
+    samples : ndarray, shape ``(n, *lattice)``
         Binned samples, NaN where unobserved.
     geometry : Geometry
     method : str or callable

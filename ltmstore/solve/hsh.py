@@ -1,7 +1,7 @@
 """Hemispherical harmonics: a low-order orthonormal basis on the hemisphere of light directions.
 
 Gautron, Krivanek, Pattanaik and Bouatouch, "A novel hemispherical basis for accurate and
-efficient rendering", EGSR 2004. The basis of order ``L`` holds ``(L + 1)^2`` functions
+efficient rendering", EGSR 2004. The basis of order ``L`` holds ``(L + 1)^2`` functions::
 
     H_l^m(theta, phi) = K_l^m P_l^|m|(2 cos theta - 1) {sqrt(2) cos(m phi), 1, sqrt(2) sin(|m| phi)}
 

@@ -99,14 +99,16 @@ class Lights:
     toward: np.ndarray
     half: np.ndarray
     g: np.ndarray
+    far: bool = False  # the same directions for every pixel, no fall-off (:func:`far_lights`)
 
     def take(self, cells: np.ndarray) -> Lights:
         """The lights of the cells ``cells`` only."""
-        return Lights(self.toward[..., cells], self.half[..., cells], self.g[:, cells])
+        return Lights(self.toward[..., cells], self.half[..., cells], self.g[:, cells],
+                      self.far)
 
     def rows(self, rows: np.ndarray) -> Lights:
         """The lights as seen from the pixels ``rows`` only."""
-        return Lights(self.toward[:, rows], self.half[:, rows], self.g[rows])
+        return Lights(self.toward[:, rows], self.half[:, rows], self.g[rows], self.far)
 
 
 def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
@@ -176,11 +178,28 @@ def _normal_equations(jac: np.ndarray, w: np.ndarray,
     return jtj, (weighted @ y[..., None].astype(jac.dtype, copy=False))[..., 0].astype(np.float64)
 
 
-def _linear_terms(theta: np.ndarray, lights: Lights, y: np.ndarray,
-                  w: np.ndarray) -> np.ndarray:
+def _basis(theta: np.ndarray, lights: Lights) -> np.ndarray:
+    """``(n, 3, K)``: the model's derivatives in ``rho, k, a`` (it is linear in them), the same
+    values as :func:`_model`'s Jacobian there without the rest of it."""
+    p, q, log_alpha = (c[:, None].astype(lights.g.dtype) for c in theta[:, [0, 1, 4]].T)
+    norm = np.sqrt(1 + p * p + q * q)
+    a2 = np.exp(2 * log_alpha)
+    ndotl = _dot(lights.toward, p, q, norm)
+    ndoth = np.clip(_dot(lights.half, p, q, norm), 0.0, 1.0)
+    inv_u = 1 / (ndoth * ndoth * (a2 - 1) + 1)
+    basis = np.empty((len(theta), 3, lights.g.shape[1]), dtype=lights.g.dtype)
+    basis[:, 0] = lights.g * np.where(ndotl > 0, ndotl, 0.0)
+    basis[:, 1] = lights.g * (a2 / np.pi * inv_u * inv_u * (norm / 4))
+    basis[:, 2] = 1.0
+    return basis
+
+
+def _linear_terms(theta: np.ndarray, lights: Lights, y: np.ndarray, w: np.ndarray, *,
+                  basis: np.ndarray | None = None) -> np.ndarray:
     """``theta`` with ``rho, k, a`` replaced by their weighted least-squares values for its
-    normal and roughness (non-negative; the variable-projection start of each fit)."""
-    basis = _model(theta, lights, jacobian=True)[1][:, [2, 3, 5]]  # linear in rho, k, a
+    normal and roughness (non-negative; the variable-projection start of each fit);
+    ``basis``: :func:`_basis` of ``theta`` where it is already at hand."""
+    basis = _basis(theta, lights) if basis is None else basis  # linear in rho, k, a
     ata, atb = _normal_equations(basis, w, y)
     coef = np.maximum(np.linalg.solve(ata + 1e-12 * np.eye(3), atb[..., None])[..., 0], 0.0)
     out = theta.copy()
@@ -204,7 +223,11 @@ def levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w: np.
                         n_iter: int = N_ITER) -> tuple[np.ndarray, np.ndarray]:
     """Minimise each pixel's weighted squared error over ``theta (n, 6)``, all pixels at once
     (one damping factor per pixel, a step kept only where it lowers that pixel's cost).
-    Returns the parameters and each pixel's final cost."""
+    Returns the parameters and each pixel's final cost. Far lights
+    (:func:`far_lights`) take the compiled kernel of :mod:`ltmstore.solve.physical_far`, the
+    same steps pixel by pixel."""
+    if lights.far and len(theta):
+        return _far_levenberg_marquardt(theta, lights, y, w, n_iter=n_iter)
     theta = _clip(theta.copy())
     cost = _cost(theta, lights, y, w)
     lam = np.full(len(theta), 1e-2)
@@ -220,6 +243,20 @@ def levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w: np.
         theta[better], cost[better] = trial[better], trial_cost[better]
         lam = np.where(better, lam / 3, lam * 4)
     return theta, cost
+
+
+def _far_levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w: np.ndarray,
+                             *, n_iter: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`levenberg_marquardt` at far lights, compiled (imported here: Numba's import
+    costs the commands that never fit far lights)."""
+    from ltmstore.solve import physical_far
+
+    out = np.array(theta, dtype=np.float64, order="C")
+    toward, half = (np.ascontiguousarray(v[:, 0], dtype=np.float32)
+                    for v in (lights.toward, lights.half))
+    y32, w32 = (np.ascontiguousarray(v, dtype=np.float32) for v in (y, w))
+    cost = physical_far.levenberg_marquardt(out, toward, half, y32, w32, n_iter)
+    return out, cost
 
 
 def _starts(lights: Lights, y: np.ndarray, w: np.ndarray) -> list[np.ndarray]:
@@ -273,7 +310,7 @@ def far_lights(directions: np.ndarray, n: int) -> Lights:
     half /= np.sqrt((half**2).sum(axis=0))
     shape = (3, n, toward.shape[1])
     return Lights(np.broadcast_to(toward[:, None], shape), np.broadcast_to(half[:, None], shape),
-                  np.ones(shape[1:], dtype=np.float32))
+                  np.ones(shape[1:], dtype=np.float32), far=True)
 
 
 def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.ndarray:
@@ -284,7 +321,13 @@ def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.n
 
     luminance = rgb @ LUMA
     theta, w = fit_parameters(luminance, np.ones_like(luminance), lights, n_iter=n_iter)
-    return np.stack([_linear_terms(theta, lights, rgb[..., c], w) for c in range(3)], axis=1)
+    basis = _basis(theta, lights)  # the same geometry for the three channels
+    # At the largest roughness a far light's lobe is as flat as the floor: their split was
+    # left to rounding, and clipping the negative one at 0 could leave a pixel several times
+    # brighter than its photographs. The floor takes it there (no lobe).
+    basis[theta[:, 4] >= np.log(ALPHA_RANGE[1]), 1] = 0.0
+    return np.stack([_linear_terms(theta, lights, rgb[..., c], w, basis=basis)
+                     for c in range(3)], axis=1)
 
 
 def render_colour(theta: np.ndarray, lights: Lights) -> np.ndarray:

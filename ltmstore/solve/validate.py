@@ -93,7 +93,7 @@ def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, 
 
     Parameters
     ----------
-    mask : ndarray of bool, shape (n, *lattice)
+    mask : ndarray of bool, shape ``(n, *lattice)``
         Observed cells of each pixel.
     folds : int
         Number of folds; they hide disjoint sets of cells.
@@ -139,7 +139,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
 
     Parameters
     ----------
-    samples : ndarray, shape (n, *lattice)
+    samples : ndarray, shape ``(n, *lattice)``
         Binned samples, NaN where unobserved (one row per pixel).
     geometry : Geometry
     method : str or callable

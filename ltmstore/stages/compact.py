@@ -4,7 +4,11 @@ After a complete reconstruction a near-light store relights from its ``ltm`` alo
 ``frames`` (and ``frame_chroma``) are needed again only to reconstruct once more (re-ingest the
 acquisition then). :func:`compact` rewrites the store on a linked copy beside it
 (:func:`ltmstore.core.store.revised_store`) and swaps the copy in when it is complete, so a
-failure or a kill leaves the store as it was:
+failure or a kill leaves the store as it was (the copy is never reused: the next writer removes
+it). A store with a stage that did not finish, or with a killed ``ltm reconstruct --overwrite``'s
+revision beside it, is refused: finish that first.
+
+What is done:
 
 * every LTM variable is rewritten with :data:`ltmstore.core.checksum.LTM_COMPRESSORS` (lossless)
   in the chosen precision, with its light-major copy (:mod:`ltmstore.stages.by_light`) in a
@@ -76,19 +80,42 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
     drop = [n for n in FRAME_VARIABLES if n in group] if not (keep_frames or far) else []
     start, before = time.perf_counter(), store_bytes(path)
     try:
-        with st.writing(path), st.revised_store(path) as side:
-            info = _compact_copy(path, side, PRECISIONS[precision], drop)
-            info.update(precision=precision, frames_dropped=bool(drop) or not _has_frames(side),
-                        frames_kept_reason="far-light store: relit from its frames" if far
-                        else None, bytes_before=before)
-            info["seconds"] = time.perf_counter() - start
-            side_group = zarr.open_group(str(side), mode="r+", zarr_format=3)
-            st.complete_stage(side_group, "compact", info)
+        with st.writing(path) as real:
+            _refuse_unfinished(path, real)
+            with st.revised_store(real, resumable=False) as side:
+                info = _compact_copy(real, side, PRECISIONS[precision], drop)
+                info.update(precision=precision,
+                            frames_dropped=bool(drop) or not _has_frames(side),
+                            frames_kept_reason="far-light store: relit from its frames" if far
+                            else None, bytes_before=before)
+                info["seconds"] = time.perf_counter() - start
+                side_group = zarr.open_group(str(side), mode="r+", zarr_format=3)
+                st.complete_stage(side_group, "compact", info)
     except OSError as exc:
         raise LtmError(f"cannot compact store {str(path)!r}: {exc.strerror or exc}; the store "
                        "is untouched") from exc
     info["bytes_after"] = store_bytes(path)
     return info
+
+
+def _refuse_unfinished(path: Path, real: Path) -> None:
+    """Refuse a store with a stage that did not finish, in it or in a revision beside it.
+
+    A killed ``ltm reconstruct --overwrite`` leaves its half-built revision beside the store
+    (:func:`ltmstore.core.store.revision_path`, resumed by the next such run): compacting now
+    would either take its samples of another lattice or throw its work away.
+    """
+    unfinished = [name for name, entry in st.stages(st.open_group(real, mode="r")).items()
+                  if not entry.get("complete")]
+    if unfinished:
+        raise LtmError(f"store {str(path)!r}: stage {unfinished[0]!r} did not finish "
+                       "(interrupted?); run it again to finish it, then compact")
+    side = st.revision_path(real)
+    if side.exists():
+        raise LtmError(f"store {str(path)!r} has an unfinished `ltm reconstruct --overwrite` "
+                       f"(interrupted?) building its new ltm in {str(side)!r}; run that "
+                       f"reconstruct --overwrite again to finish it, or remove {str(side)!r} to "
+                       "keep the current ltm, then compact")
 
 
 def _has_frames(path: Path) -> bool:

@@ -104,6 +104,11 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     if acq.view_plane is not None and poses.p is None:
         raise LtmError(f"{str(acq.poses)}: acquisition.json declares a view_plane but the poses "
                        "have no p, q columns; expected header 't,r,s,z,p,q'")
+    if acq.view_plane is None and poses.p is not None:
+        raise LtmError(f"{str(acq.poses)}: the poses have p, q columns (a moving camera, 6D) "
+                       "but acquisition.json declares no view_plane; expected 'view_plane': "
+                       "{'p': [min, max], 'q': [min, max]}, or header 't,r,s,z' for a fixed "
+                       "camera")
     z_tolerance = _z_tolerance(z_tolerance, acq.plane)
     rig = _rig(acq)
     light = partial(lights_at, poses=poses, plane=acq.plane, z_tolerance=z_tolerance,

@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 
 from ltmstore.capture.acquisition import sha256_file
 from ltmstore.capture.lp import decode_image, read_lp
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, brief
 from ltmstore.core.lights import DISK, FAR, KIND_ATTR, coordinate_attrs
 from ltmstore.core.store import begin_stage, new_store
 from ltmstore.stages.frames import DEFAULT_CHUNK_FRAMES, STAGE, FrameSink, Lights, finish_ingest
@@ -75,7 +75,7 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
     if lights is not None:
         keep = np.asarray(lights, dtype=int)
         if keep.size == 0 or keep.min() < 0 or keep.max() >= len(names):
-            raise LtmError(f"lights {list(lights)!r} must be indices of the {len(names)} "
+            raise LtmError(f"lights {brief(lights)} must be indices of the {len(names)} "
                            f"lights of {str(lp_path)}")
         names, directions = [names[i] for i in keep], directions[keep]
     lights = far_lights(directions)

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import math
+import os
+import shutil
 from dataclasses import dataclass
 
 import numpy as np
+import psutil
 import zarr
 
 from ltmstore.core import store as st
+from ltmstore.core.errors import LtmError
 
 METHOD_MAP = "method_map"  # (tile_y, tile_x) index into its attribute "methods"
 
@@ -57,15 +62,76 @@ def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 
     tile of whole LTFs would exceed ``max_block_bytes`` (6D lattices: a solver holds several
     copies of its tile).
     """
-    while tile > 1 and 4 * tile * tile * int(np.prod(lattice)) > max_block_bytes:
+    while tile > 1 and 4 * tile * tile * math.prod(lattice) > max_block_bytes:
         tile = -(-tile // 2)
     tile_yx = (min(tile, image[0]), min(tile, image[1]))
     chunk = list(lattice)
-    while 4 * np.prod(tile_yx) * np.prod(chunk) > chunk_bytes and max(chunk) > 1:
+    while 4 * math.prod(tile_yx) * math.prod(chunk) > chunk_bytes and max(chunk) > 1:
         axis = int(np.argmax(chunk))
         chunk[axis] = -(-chunk[axis] // 2)
     return TilePlan(image=tuple(image), lattice=tuple(lattice), tile=tile_yx,
                     lattice_chunk=tuple(chunk))
+
+
+# What one run holds in memory at once: the frame count of every cell (int64, resample's
+# binning) and a tile of whole LTFs twice (its samples and its LTM, float32).
+COUNT_BYTES, FLOAT_BYTES, BLOCK_COPIES = 8, 4, 2
+# The best lossless compression assumed of a stored LTM before its size is called impossible
+# (the smooth synthetic LTM of the ingest tests compresses 11.5 times, a real one far less).
+MAX_COMPRESSION = 16
+
+
+def check_fits(plan: TilePlan, store: str | os.PathLike, *, what: str, ltm_copies: int) -> None:
+    """Refuse a reconstruction that cannot fit in this machine's memory or the store's disk.
+
+    Parameters
+    ----------
+    plan : TilePlan
+        The tile plan of the lattice over the image.
+    store : str or PathLike
+        The store to be written (its disk's free space counts).
+    what : str
+        The lattice as the user named it, for the message (``"--lattice 100000x100000"``).
+    ltm_copies : int
+        Dense LTM-sized float32 variables the store will hold (``ltm``, its colour LTMs, their
+        light-major copies, the samples).
+
+    Raises
+    ------
+    LtmError
+        Naming the size, when the memory needed is more than the memory available now, or
+        the LTM at :data:`MAX_COMPRESSION` times compression is more than the free disk.
+    """
+    cells = math.prod(plan.lattice)
+    memory = cells * (COUNT_BYTES + BLOCK_COPIES * FLOAT_BYTES * math.prod(plan.tile))
+    available = psutil.virtual_memory().available
+    shape = f"{what} ({cells:,} cells over {plan.image[0]}x{plan.image[1]} pixels)"
+    if memory > available:
+        raise LtmError(f"{shape} needs at least {size_text(memory)} of memory (the frame count "
+                       f"of every cell and a pixel tile of whole LTFs); {size_text(available)} "
+                       "is available; expected a coarser lattice")
+    stored = ltm_copies * FLOAT_BYTES * math.prod(plan.image) * cells
+    free = shutil.disk_usage(_existing_parent(store)).free
+    if stored // MAX_COMPRESSION > free:
+        raise LtmError(f"{shape} makes a store of {size_text(stored)} uncompressed (at least "
+                       f"{size_text(stored // MAX_COMPRESSION)} compressed); the disk of "
+                       f"{str(store)!r} has {size_text(free)} free; expected a coarser lattice")
+
+
+def size_text(n: int) -> str:
+    """Bytes in binary units: ``74.5 GiB``, ``6.94 EiB``."""
+    units = ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB")
+    i = 0
+    while n >= 1024 ** (i + 1) and i < len(units) - 1:
+        i += 1
+    return f"{n} bytes" if i == 0 else f"{n / 1024 ** i:.3g} {units[i]}"
+
+
+def _existing_parent(path: str | os.PathLike) -> str:
+    path = os.path.abspath(path)
+    while not os.path.exists(path) and os.path.dirname(path) != path:
+        path = os.path.dirname(path)
+    return path
 
 
 def write_method_map(group: zarr.Group, plan: TilePlan, chosen: np.ndarray, names: list[str],

@@ -1,15 +1,16 @@
-"""Preview images of a reconstructed store: relit PNGs and an animated GIF."""
+"""Preview images of a reconstructed store: relit PNGs and an animated GIF, at the capture's
+exposure (photometric, as ``ltm relight``) unless told otherwise."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
 
 from ltmstore.core.dims import Plane
+from ltmstore.core.imagefile import write_image
 from ltmstore.core.store import open_store
-from ltmstore.core.transfer import encode_images
+from ltmstore.core.transfer import CAPTURE, check_exposure, encode_images
 from ltmstore.stages.relight import relight
 
 
@@ -21,14 +22,31 @@ def circle_path(plane: Plane, n: int, *, radius: float = 0.8) -> np.ndarray:
     return np.column_stack([rc + radius * hr * np.cos(angle), sc + radius * hs * np.sin(angle)])
 
 
-def render_previews(store, out_dir, *, n_frames: int = 24, fps: float = 12) -> dict:
+def render_previews(store, out_dir, *, n_frames: int = 24, fps: float = 12,
+                    exposure: str = CAPTURE, ev: float = 0.0) -> dict:
     """Write relit PNGs (centre and four corners) and ``relight.gif`` (a circling light).
+
+    Parameters
+    ----------
+    store : path-like or xarray.Dataset
+        A reconstructed near-light store.
+    out_dir : path-like
+        Folder for ``relit_{centre,left,right,top,bottom}.png`` and ``relight.gif``.
+    n_frames, fps : int, float
+        Frames of the circling light and their rate.
+    exposure : {"capture", "auto"}
+        ``capture`` (default): every image at the capture's exposure (photometric: a light far
+        out gives a darker image); ``auto``: all images scaled by one factor so that the
+        brightest 0.5 % of their pixels clip (:func:`ltmstore.core.transfer.encode_images`).
+    ev : float
+        Stops added to ``exposure``.
 
     Returns
     -------
     dict
         The paths written.
     """
+    check_exposure(exposure, ev)
     ds = open_store(store)
     acq = ds.attrs["acquisition"]
     plane, transfer = Plane.from_json(acq["plane"]), acq.get("transfer", "srgb")
@@ -40,11 +58,11 @@ def render_previews(store, out_dir, *, n_frames: int = 24, fps: float = 12) -> d
               "top": (rc, sc + 0.7 * hs), "bottom": (rc, sc - 0.7 * hs)}
     path = circle_path(plane, n_frames)
     lights = np.vstack([list(stills.values()), path])
-    images = encode_images(relight(ds, lights).values, transfer)
+    images = encode_images(relight(ds, lights).values, transfer, exposure=exposure, ev=ev)
     written = {}
     for (name, _), image in zip(stills.items(), images, strict=False):
         written[name] = out_dir / f"relit_{name}.png"
-        iio.imwrite(written[name], image)
+        write_image(written[name], image)
     written["gif"] = out_dir / "relight.gif"
-    iio.imwrite(written["gif"], images[len(stills):], duration=1000 / fps, loop=0)
+    write_image(written["gif"], images[len(stills):], what="GIF", duration=1000 / fps, loop=0)
     return {k: str(v) for k, v in written.items()}

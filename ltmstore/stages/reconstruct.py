@@ -36,12 +36,12 @@ from ltmstore.core.dims import (
     object_pixels,
 )
 from ltmstore.core.errors import LtmError
-from ltmstore.core.lights import FAR, light_kind
+from ltmstore.core.lights import DISK, FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.select import AUTO, AUTO_LABELS, Choice, choose_method, choose_params
 from ltmstore.stages import surface as sf
 from ltmstore.stages.by_light import write_by_light
-from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
+from ltmstore.stages.plan import TilePlan, check_fits, plan_tiles, write_method_map
 from ltmstore.stages.resample import (
     Binning,
     bin_frames,
@@ -271,6 +271,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     if color and FRAME_CHROMA not in group:
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
                        "ingest it again with this version")
+    _check_user_lattice(path, group, lattice=lattice, delta_rs=delta_rs, far=far,
+                        copies=_ltm_copies(color, light_major), tile=tile)
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
                auto=auto, color=color, tile=tile, progress=progress, resume=resume, force=force,
                light_major=light_major)
@@ -318,6 +320,46 @@ def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: 
         "software": soft["version"]}, sort_keys=True, default=str))
 
 
+def _ltm_copies(color: bool, light_major: bool) -> int:
+    """Dense LTM-sized float32 variables of a run: samples, ltm, and its light-major copy,
+    for luminance and, in colour, Cb and Cr."""
+    return (3 if color else 1) * (3 if light_major else 2)
+
+
+def _check_user_lattice(path: str, group: zarr.Group, *, lattice, delta_rs, far: bool,
+                        copies: int, tile: int | None) -> None:
+    """Refuse a ``--lattice`` or ``--delta-rs`` that cannot fit in memory or on disk, before
+    a cluster starts or anything is written (:func:`~ltmstore.stages.plan.check_fits`)."""
+    if lattice is None and delta_rs is None:
+        return
+    what = (f"--lattice {'x'.join(map(str, lattice))}" if lattice is not None
+            else f"--delta-rs {delta_rs!r}")
+    if far:
+        from ltmstore.stages.reconstruct_far import FAR_TILE
+
+        lat, tile = Lattice.from_plane(DISK, lattice), tile or FAR_TILE
+    elif "pose_p" in group:
+        lat = lattice_6d(_plane(group), _view_plane(group, path), (), None, shape=lattice,
+                         delta=delta_rs)[0]
+    else:
+        lat = _pick_lattice(_plane(group), None, None, None, shape=lattice, delta=delta_rs)[0]
+    plan = plan_tiles(group["frames"].shape[1:], lat.shape, tile=tile or 32)
+    check_fits(plan, path, what=what, ltm_copies=copies)
+
+
+def _plane(group: zarr.Group) -> Plane:
+    return Plane.from_json(group.attrs["acquisition"]["plane"])
+
+
+def _view_plane(group: zarr.Group, path) -> dict:
+    """The view plane of a 6D store (one with camera positions)."""
+    view = group.attrs["acquisition"].get("view_plane")
+    if view is None:
+        raise LtmError(f"store {str(path)!r} holds camera positions (pose_p, pose_q) but no "
+                       "view_plane; declare it in acquisition.json and ingest again")
+    return view
+
+
 def _pick_lattice(plane: Plane, r, s, valid, *, shape, delta) -> tuple[Lattice, str]:
     if shape is not None:
         return Lattice.from_plane(plane, shape), "user"
@@ -361,15 +403,19 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
                  resume: bool, force: bool, light_major: bool) -> dict:
     import dask.array as da
 
-    plane = Plane.from_json(group.attrs["acquisition"]["plane"])
+    plane = _plane(group)
     r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     timings = {}
     start = time.perf_counter()
     positions = view_positions(group, r, s)  # (r, s), or (r, s, p, q) in 6D
+    path = getattr(group.store, "root", ".")
     pick = (partial(_pick_lattice, plane, r, s, valid) if len(positions) == 2
-            else partial(lattice_6d, plane, group.attrs["acquisition"]["view_plane"], positions,
-                         valid))
+            else partial(lattice_6d, plane, _view_plane(group, path), positions, valid))
     lat, chosen = pick(shape=lattice, delta=delta_rs)
+    frames = da.from_zarr(group["frames"])
+    plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile)
+    check_fits(plan, path, what=f"the {chosen} lattice {'x'.join(map(str, lat.shape))}",
+               ltm_copies=_ltm_copies(color, light_major))
     binning = bin_positions(lat, positions, valid)
     if binning.k == 0:
         raise LtmError(f"no valid frame falls on the {lat.shape} lattice")
@@ -377,8 +423,6 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
         automatic = pick(shape=None, delta=None)[0]
         raise LtmError(_too_sparse(lat, binning, automatic,
                                    bin_positions(automatic, positions, valid).ratio))
-    frames = da.from_zarr(group["frames"])
-    plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile)
     key = run_key(lattice=lattice, delta_rs=delta_rs, method=method, params=params, auto=auto,
                   color=color, tile=tile)
     ltm_names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]

@@ -16,7 +16,9 @@ evaluated by each tile's chosen model straight from the frames (no lattice in be
 as there, to the sRGB-encoded colours and decoded to linear light); a
 ``(r, s)`` light is the direction ``(r, s, sqrt(1 - r^2 - s^2))``.
 
-Relit values are never negative (clipped at 0). Results are lazy Dask-backed
+Relit values are linear light at the capture's exposure, never negative (clipped at 0),
+not scaled for display (:func:`ltmstore.core.transfer.encode_images` does that, photometric by
+default). Results are lazy Dask-backed
 :class:`xarray.DataArray` objects; nothing is read until they are computed.
 
 A 6D LTM ``(y, x, r, s, p, q)`` is re-viewed the same way: a camera position ``(p, q)`` on the
@@ -47,10 +49,12 @@ from ltmstore.core.dims import (
     T,
     rgb_from_ycbcr,
 )
-from ltmstore.core.errors import LtmError, LtmWarning
+from ltmstore.core.errors import LtmError, LtmWarning, brief
+from ltmstore.core.imagefile import check_image_path, write_image
 from ltmstore.core.lights import (
     FAR,
     above_horizon,
+    check_light,
     direction_to_plane,
     disk_to_direction,
     light_kind,
@@ -58,7 +62,13 @@ from ltmstore.core.lights import (
     plane_to_direction,
 )
 from ltmstore.core.store import open_store
-from ltmstore.core.transfer import encode_images, linear_to_srgb, srgb_to_linear
+from ltmstore.core.transfer import (
+    CAPTURE,
+    check_exposure,
+    encode_images,
+    linear_to_srgb,
+    srgb_to_linear,
+)
 from ltmstore.solve.hsh import hsh_basis
 from ltmstore.solve.lightfit import Model
 from ltmstore.stages import surface
@@ -183,7 +193,7 @@ def _views(ds: xr.Dataset, view, n: int) -> tuple[np.ndarray, list] | tuple[None
     ltm = ds[LTM]
     if P not in ltm.dims:
         if view is not None:
-            raise LtmError(f"view {np.asarray(view).tolist()!r} given, but the store's ltm has no "
+            raise LtmError(f"view {brief(view)} given, but the store's ltm has no "
                            "view axes (p, q): it is a 4D LTM")
         return None, None
     bounds = ds.attrs.get("acquisition", {}).get("view_plane")
@@ -193,7 +203,7 @@ def _views(ds: xr.Dataset, view, n: int) -> tuple[np.ndarray, list] | tuple[None
     views = np.atleast_2d(np.asarray(view, dtype=float))
     if views.shape[-1] != 2 or views.ndim != 2 or len(views) not in (1, n) or \
             not np.isfinite(views).all():
-        raise LtmError(f"view {np.asarray(view).tolist()!r} must be one finite (p, q) pair or "
+        raise LtmError(f"view {brief(view)} must be one finite (p, q) pair or "
                        f"one per light ({n})")
     return views, [view_weights(ltm, v, bounds) for v in views]
 
@@ -245,7 +255,12 @@ def relight(store, lights=None, *, directions=None, view=None,
     -------
     xarray.DataArray
         Dims ``(light, y, x[, color])``, linear light, never negative, Dask-backed (with
-        coordinates ``view_p, view_q`` for a 6D LTM).
+        coordinates ``view_p, view_q`` for a 6D LTM). Photometric, at the capture's exposure:
+        at a light of the capture it is that light's photograph (far lights; at the capture's
+        mean exposure where reconstruct fitted one per photograph) or camera B's video frame
+        (near lights), decoded to linear light in ``[0, 1]``; a weight pattern of half the
+        weight gives half the value, and lights summed give the sum of their images. Written
+        as 8-bit images by :func:`ltmstore.core.transfer.encode_images` (``exposure``, ``ev``).
     """
     ds = _as_dataset(store)
     if LTM not in ds:
@@ -262,11 +277,11 @@ def relight(store, lights=None, *, directions=None, view=None,
     if directions is not None:
         dirs = _above_horizon(directions)
     else:
-        points = np.atleast_2d(np.asarray(lights, dtype=float))
+        points = check_light(lights, "light", ("r", "s"))
         if points.shape[-1] != 2 or points.ndim != 2 or not np.isfinite(points).all():
-            raise LtmError(f"lights {np.asarray(lights).tolist()!r} must be finite (r, s) pairs")
+            raise LtmError(f"lights {brief(lights)} must be finite (r, s) pairs")
         if far and (np.hypot(points[:, 0], points[:, 1]) >= 1).any():
-            raise LtmError(f"lights {points.tolist()!r} of a far-light store must lie inside the "
+            raise LtmError(f"lights {brief(points)} of a far-light store must lie inside the "
                            "unit disk (r = lx, s = ly, r^2 + s^2 < 1)")
         dirs = (disk_to_direction(points[:, 0], points[:, 1]) if far else
                 plane_to_direction(points[:, 0], points[:, 1], _plane(acq, ds[LTM]).height))
@@ -288,7 +303,7 @@ def _plane(acq: dict, ltm: xr.DataArray) -> Plane:
 
 
 def _above_horizon(directions) -> np.ndarray:
-    dirs = normalise(directions)
+    dirs = normalise(check_light(directions, "direction", ("lx", "ly", "lz")))
     if not above_horizon(dirs).all():
         bad = dirs[~above_horizon(dirs)][0]
         raise LtmError(f"direction ({bad[0]:.3g}, {bad[1]:.3g}, {bad[2]:.3g}) is at or below "
@@ -302,6 +317,10 @@ def _observed_directions(ds: xr.Dataset) -> np.ndarray | None:
         return None
     valid = ds["pose_valid"].values.astype(bool)
     r, s, z = (np.asarray(ds[k])[valid] for k in ("pose_r", "pose_s", "pose_z"))
+    bad = np.count_nonzero(~np.isfinite(np.column_stack([r, s, z])).all(axis=1))
+    if bad:
+        raise LtmError(f"the store's poses hold {bad} valid light positions that are not finite; "
+                       "the store is damaged (run ltm check)")
     if light_kind(ds.attrs.get("acquisition", {})) == FAR:
         return np.column_stack([r, s, z])
     return normalise(np.column_stack([r, s, z]))
@@ -505,9 +524,15 @@ def _apply_rgb(func, args: list[xr.DataArray], core: list[list[str]]) -> xr.Data
     return rgb.assign_coords({COLOR: list(COLOR_CHANNELS)})
 
 
-def write_gif(store, path: str | os.PathLike, lights, views=None, *, fps: float = 12) -> str:
+def write_gif(store, path: str | os.PathLike, lights, views=None, *, fps: float = 12,
+              exposure: str = CAPTURE, ev: float = 0.0) -> str:
     """An animated GIF of the store relit along ``lights (n, 2)`` and, for a 6D LTM, seen from
     ``views (n, 2)`` (the light and the viewpoint both move).
+
+    Frames are written at the capture's exposure by default (photometric, as ``ltm relight``):
+    a frame lit from far out is darker than one lit from above. ``exposure="auto"`` scales all
+    frames by one factor so that the brightest 0.5 % of their pixels clip
+    (:func:`ltmstore.core.transfer.encode_images`).
 
     Parameters
     ----------
@@ -517,19 +542,21 @@ def write_gif(store, path: str | os.PathLike, lights, views=None, *, fps: float 
     lights : array-like, shape (n, 2)
     views : array-like, shape (n, 2) or (2,), optional
     fps : float
+    exposure : {"capture", "auto"}
+        The frames' exposure (default ``capture``).
+    ev : float
+        Stops added to ``exposure`` (linear values times ``2**ev``).
 
     Returns
     -------
     str
         The path written.
     """
-    import imageio.v3 as iio
-
+    check_exposure(exposure, ev)
+    check_image_path(path)
     ds = _as_dataset(store)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-    images = encode_images(relight(ds, lights, view=views).values, transfer)
-    try:
-        iio.imwrite(path, images, duration=1000 / fps, loop=0)
-    except (OSError, ValueError) as exc:
-        raise LtmError(f"cannot write GIF {str(path)!r}: {exc}") from exc
+    images = encode_images(relight(ds, lights, view=views).values, transfer,
+                           exposure=exposure, ev=ev)
+    write_image(path, images, what="GIF", duration=1000 / fps, loop=0)
     return os.fspath(path)

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ltmstore.core.dims import Lattice, P, Plane, Q, R, S
+from ltmstore.core.dims import Lattice, P, Plane, Q, R, S, cells_of_delta
 from ltmstore.core.errors import LtmError
 
 if TYPE_CHECKING:
@@ -234,10 +234,7 @@ def lattice_6d(plane: Plane, view_plane: dict, positions: tuple[np.ndarray, ...]
                            "axes; a 6D store needs RxSxPxQ, e.g. 25x25x16x16")
         return Lattice(bounds=bounds, shape=tuple(int(n) for n in shape), dims=dims), "user"
     if delta is not None:
-        if not (np.isfinite(delta) and delta > 0):
-            raise LtmError(f"--delta-rs {delta!r} must be a positive number (plane units)")
-        cells = tuple(max(1, int(round((hi - lo) / delta))) for lo, hi in bounds)
-        return Lattice(bounds=bounds, shape=cells, dims=dims), "user"
+        return Lattice(bounds=bounds, shape=cells_of_delta(bounds, delta), dims=dims), "user"
     lattice = None
     for n in range(max_cells, 3, -1):
         m = max(2, int(round(VIEW_TO_LIGHT_CELLS * n)))

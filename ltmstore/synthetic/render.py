@@ -31,7 +31,7 @@ from scipy import ndimage
 from tqdm.auto import tqdm
 
 from ltmstore.core.dims import LIGHT_DIMS, LUMA, VIEW_DIMS, Lattice
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, brief
 from ltmstore.synthetic.scenes import Scene
 
 LOBES = ("ggx", "beckmann", "phong")
@@ -301,7 +301,7 @@ def _height_at(height: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.nda
 def _as_light(light) -> np.ndarray:
     light = np.asarray(light, dtype=np.float64)
     if light.shape != (3,) or not np.all(np.isfinite(light)):
-        raise LtmError(f"light {light.tolist()!r} must be three finite numbers (r, s, z)")
+        raise LtmError(f"light {brief(light)} must be three finite numbers (r, s, z)")
     return light
 
 
