@@ -50,6 +50,9 @@ def test_every_command_prints_the_one_prefix(argv, hint, capsys):
     (["reconstrct", "s.zarr"], "did you mean 'reconstruct'?"),
     (["reconstruct", "s.zarr", "--method", "lar"], "did you mean 'lars'?"),
     (["archive", "runn"], "did you mean 'run'?"),
+    # argparse names the missing required option before the unknown one
+    (["relight", "s.zarr", "--drection", "0,0,1"],
+     "did you mean --direction instead of --drection?"),
 ])
 def test_a_misspelt_option_or_command_names_the_right_one(argv, suggestion, capsys):
     err = error_of(argv, capsys)

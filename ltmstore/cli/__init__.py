@@ -26,11 +26,18 @@ class Parser(argparse.ArgumentParser):
     """argparse with one-line errors (``ltm: error: ...``, exit 2), sub-commands too, and the
     closest option, command or choice for a misspelt one."""
 
-    def error(self, message: str):
-        from ltmstore.cli.suggest import with_choice_hint
+    _given: list[str] = []
 
-        self.exit(2, f"{self.prog.split()[0]}: error: {with_choice_hint(message)} "
-                  f"(see {self.prog} --help)\n")
+    def error(self, message: str):
+        from ltmstore.cli.suggest import misspelt_hint, with_choice_hint
+
+        message = with_choice_hint(message) + misspelt_hint(self, message, self._given)
+        self.exit(2, f"{self.prog.split()[0]}: error: {message} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        # kept for error(): a required option missing may be one the user misspelt
+        self._given = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
 
     def parse_args(self, args=None, namespace=None):
         from ltmstore.cli.suggest import command_parser, unrecognized

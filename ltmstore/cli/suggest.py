@@ -51,6 +51,20 @@ def unrecognized(parser: argparse.ArgumentParser, extras: list[str]) -> str:
     return message
 
 
+def misspelt_hint(parser: argparse.ArgumentParser, message: str, given: list[str]) -> str:
+    """``; did you mean --direction?`` when ``message`` says a required option is missing and
+    ``given`` holds an option ``parser`` does not know that is close to one it does
+    (``--drection``); argparse reports the missing option before the unknown one."""
+    if "required" not in message or "did you mean" in message:
+        return ""
+    known = option_strings(parser)
+    for arg in (g.split("=", 1)[0] for g in given if g.startswith("--")):
+        close = None if arg in known else closest(arg, known)
+        if close:
+            return f"; did you mean {close} instead of {arg}?"
+    return ""
+
+
 def with_choice_hint(message: str) -> str:
     """argparse's ``invalid choice: 'X' (choose from ...)`` with the list replaced by the
     closest choice when one is close; other messages unchanged."""
