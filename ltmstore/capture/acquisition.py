@@ -21,6 +21,7 @@ import numpy as np
 
 from ltmstore.core.dims import Plane, check_range
 from ltmstore.core.errors import LtmError
+from ltmstore.core.imagefile import write_bytes_atomic
 
 FORMAT = "ltm-acquisition/1"
 TRANSFERS = ("srgb", "linear")
@@ -166,14 +167,7 @@ def write_text_atomic(path: str | os.PathLike, text: str, *, what: str) -> None:
 
     Raises :class:`LtmError` naming ``what`` (for example ``"poses"``) on a write error.
     """
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise LtmError(f"cannot write {what} {str(path)!r}: {exc.strerror or exc}") from None
+    write_bytes_atomic(path, text.encode("utf-8"), what=what)
 
 
 def load_acquisition(folder: str | os.PathLike) -> Acquisition:

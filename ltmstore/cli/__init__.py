@@ -73,12 +73,15 @@ def main(argv: list[str] | None = None) -> int:
     from ltmstore.cli.args import join_signed_values
 
     args = build_parser().parse_args(join_signed_values(sys.argv[1:] if argv is None else argv))
-    saved = warnings.catch_warnings()  # the filters below, undone on return
-    saved.__enter__()
-    shown = warnings.showwarning
-    warnings.showwarning = partial(_one_line_warning, shown)
-    # Zarr's own warnings (a folder that is no array, ...) are store damage: `ltm check` names it
-    warnings.filterwarnings("ignore", category=UserWarning, module=r"zarr(\.|$)")
+    with warnings.catch_warnings():  # the filters and the printer below, undone on return
+        warnings.showwarning = partial(_one_line_warning, warnings.showwarning)
+        # Zarr's warnings (a folder that is no array, ...) are store damage: `ltm check` names it
+        warnings.filterwarnings("ignore", category=UserWarning, module=r"zarr(\.|$)")
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the parsed command; user mistakes and damaged stores as one line, exit 2."""
     try:
         args.func(args)
         sys.stdout.flush()  # a closed pipe (`ltm info STORE | head -1`) shows up here
@@ -98,9 +101,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("ltm: interrupted", file=sys.stderr)
         return 130
-    finally:
-        warnings.showwarning = shown
-        saved.__exit__(None, None, None)
     return 0
 
 

@@ -313,6 +313,7 @@ def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool) -> lis
     by ``pattern`` with ``{i}`` (or ``-i`` before the suffix); existing ones refused unless
     ``overwrite``; a missing folder or a suffix that names no image format refused."""
     from ltmstore.core.imagefile import check_image_path
+    from ltmstore.share.atomic import check_output
 
     check_image_path(pattern)
     if combined and n > 1:
@@ -322,13 +323,7 @@ def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool) -> lis
     else:
         base = Path(pattern)
         paths = [base.with_name(f"{base.stem}-{i}{base.suffix}") for i in range(n)]
-    if not paths[0].parent.is_dir():
-        raise LtmError(f"output folder {str(paths[0].parent)!r} does not exist")
-    existing = [p for p in paths if p.exists()]
-    if existing and not overwrite:
-        raise LtmError(f"output {str(existing[0])!r} already exists; pass --overwrite to "
-                       "replace it")
-    return paths
+    return [check_output(p, overwrite) for p in paths]
 
 
 def cmd_compact(a: argparse.Namespace) -> None:

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import zarr
 
+from ltmstore.core.checksum import is_checksum_error
+
 COORDINATES = ("t", "y", "x", "r", "s", "p", "q", "channel", "color", "component")
 SURFACE = ("normal", "albedo", "specular", "roughness", "ambient")
 SURFACE_PREFIX = "physical+"  # a far store's surface blend (ltmstore.stages.surface.PREFIX)
@@ -233,7 +235,7 @@ def probe_damage(meta: Meta) -> list[str]:
         array[tuple(slice(0, 1) for _ in meta.shape)]
     except Exception as exc:  # noqa: BLE001 - whatever fails to decode is damage to name
         text = " ".join(str(exc).split())[:120] or type(exc).__name__
-        if "checksum" in text:
+        if is_checksum_error(exc):
             return [f"{next(meta.keys())} fails its check (checksum mismatch)"]
         return [f"{meta.name}/zarr.json does not describe its first chunk ({text})"]
     return []

@@ -243,14 +243,15 @@ def _block_stats(truth: np.ndarray, estimate: np.ndarray, *, operators: list,
     estimate = _interpolate(estimate, operators)
     axes = tuple(range(2, truth.ndim))
     diff = truth - estimate  # in float32, as snr_db
-    err = truth.astype(np.float64) - estimate.astype(np.float64)
-    out = [np.abs(err).mean(axis=axes), np.abs(err).var(axis=axes),
-           (truth.astype(np.float64) ** 2).sum(axis=axes),
+    truth64 = truth.astype(np.float64)
+    err = truth64 - estimate.astype(np.float64)
+    abs_err = np.abs(err)
+    out = [abs_err.mean(axis=axes), abs_err.var(axis=axes), (truth64**2).sum(axis=axes),
            (diff.astype(np.float64) ** 2).sum(axis=axes)]
     rest = tuple(range(2, truth.ndim - len(cells[0])))
     for cell in cells:
         at = (slice(None), slice(None), *cell)
-        out += [(err[at] ** 2).mean(axis=rest), truth[at].astype(np.float64).max(axis=rest)]
+        out += [(err[at] ** 2).mean(axis=rest), truth64[at].max(axis=rest)]
     return np.stack(out, axis=-1)
 
 
@@ -304,8 +305,7 @@ def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -
         stats[..., 0], stats[..., 1], stats[..., 2:4].sum(axis=(0, 1)),
         stats[..., 4::2].mean(axis=(0, 1)), stats[..., 5::2].max(axis=(0, 1)))
     num, den = sums
-    psnr = [float(10 * np.log10(peak**2 / max(mse, 1e-300)))
-            for peak, mse in zip(peaks, per_cell, strict=True)]
+    psnr = [_db(peak**2, mse) for peak, mse in zip(peaks, per_cell, strict=True)]
     maps = _maps_dataset(mean, var, b)
     out = {"snr_y_db": _db(num, den), "psnr_db_median": float(np.median(psnr)),
            "psnr_db": psnr, "cells": cells, **summarise_maps(maps)}

@@ -198,7 +198,8 @@ def _faded_roughness(roughness: np.ndarray, support: np.ndarray) -> np.ndarray:
     return np.nan_to_num(support * roughness + (1 - support) * typical).clip(0, 1)
 
 
-def write_maps(ds, out_dir: str | os.PathLike) -> dict[str, Path]:
+def write_maps(ds, out_dir: str | os.PathLike, *, support: np.ndarray | None = None
+               ) -> dict[str, Path]:
     """Write the surface maps of a store as PNG files in ``out_dir`` (created if missing).
 
     Parameters
@@ -207,6 +208,8 @@ def write_maps(ds, out_dir: str | os.PathLike) -> dict[str, Path]:
         A store (:func:`ltmstore.core.store.open_store`) holding the surface model.
     out_dir : path-like
         Folder of the images.
+    support : ndarray, optional
+        :func:`lobe_support` of ``ds`` where it is already at hand.
 
     Returns
     -------
@@ -219,7 +222,7 @@ def write_maps(ds, out_dir: str | os.PathLike) -> dict[str, Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     normal = ds[sf.NORMAL].values.astype(np.float64)
-    support = lobe_support(ds)
+    support = lobe_support(ds) if support is None else support
     images = {"normal": np.round(np.nan_to_num(normal * 0.5 + 0.5).clip(0, 1) * 65535
                                  ).astype(np.uint16),
               "albedo": _display(ds[sf.ALBEDO].values),
@@ -230,7 +233,8 @@ def write_maps(ds, out_dir: str | os.PathLike) -> dict[str, Path]:
 
 
 def render_material(ds, directions: np.ndarray | Sequence[Sequence[float]], *,
-                    diffuse: float = 1.0, specular: float = 1.0) -> np.ndarray:
+                    diffuse: float = 1.0, specular: float = 1.0,
+                    support: np.ndarray | None = None) -> np.ndarray:
     """The surface model of a store relit at ``directions`` with its material changed.
 
     Parameters
@@ -244,6 +248,8 @@ def render_material(ds, directions: np.ndarray | Sequence[Sequence[float]], *,
         Scale of the diffuse albedo.
     specular : float
         Scale of the lobe's strength: 0 diffuse only, 1 as fitted, above 1 specular enhancement.
+    support : ndarray, optional
+        :func:`lobe_support` of ``ds`` where it is already at hand.
 
     Returns
     -------
@@ -257,18 +263,21 @@ def render_material(ds, directions: np.ndarray | Sequence[Sequence[float]], *,
     theta = sf.read_surface(ds)
     h, w = theta.shape[:2]
     theta[..., 2] *= diffuse
-    theta[..., 3] *= specular * lobe_support(ds)[..., None]  # faded as in the maps
+    support = lobe_support(ds) if support is None else support
+    theta[..., 3] *= specular * support[..., None]  # faded as in the maps
     flat = theta.reshape(-1, 3, 6)
     rgb = physical.render_colour(flat, physical.far_lights(dirs, len(flat)))  # (p, n, 3)
     return np.moveaxis(rgb, 1, 0).reshape(len(dirs), h, w, 3).clip(min=0).astype(np.float32)
 
 
 def write_material(ds, out_dir: str | os.PathLike, directions: np.ndarray, *,
-                   diffuse: float = 1.0, specular: float = 1.0) -> list[Path]:
+                   diffuse: float = 1.0, specular: float = 1.0,
+                   support: np.ndarray | None = None) -> list[Path]:
     """Write :func:`render_material` images as 8-bit sRGB ``material_000.png``, ... in
     ``out_dir``, at one exposure: the albedo map's white (a surface facing the light with the
     99.5th-percentile albedo is white), so that scaling the material shows."""
-    images = render_material(ds, directions, diffuse=diffuse, specular=specular)
+    images = render_material(ds, directions, diffuse=diffuse, specular=specular,
+                             support=support)
     codes = np.round(linear_to_srgb(images / _white(ds[sf.ALBEDO].values)) * 255
                      ).astype(np.uint8)
     return [_write_png(Path(out_dir) / MATERIAL.format(i), c) for i, c in enumerate(codes)]
@@ -294,8 +303,10 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
     if directions is not None:
         require_material(ds)
     with atomic_output(out_dir, overwrite=overwrite, folder=True) as tmp:
-        files = list(write_maps(ds, tmp).values())
+        support = lobe_support(ds)  # once for the maps and the material images
+        files = list(write_maps(ds, tmp, support=support).values())
         if directions is not None:
-            files += write_material(ds, tmp, directions, diffuse=diffuse, specular=specular)
+            files += write_material(ds, tmp, directions, diffuse=diffuse, specular=specular,
+                                    support=support)
     return {"path": os.fspath(out_dir), "files": [f.name for f in files],
             "width": ds.sizes["x"], "height": ds.sizes["y"]}

@@ -277,9 +277,7 @@ def relight(store, lights=None, *, directions=None, view=None,
     if directions is not None:
         dirs = _above_horizon(directions)
     else:
-        points = check_light(lights, "light", ("r", "s"))
-        if points.shape[-1] != 2 or points.ndim != 2 or not np.isfinite(points).all():
-            raise LtmError(f"lights {brief(lights)} must be finite (r, s) pairs")
+        points = check_light(lights, "light", ("r", "s"))  # (n, 2), finite
         if far and (np.hypot(points[:, 0], points[:, 1]) >= 1).any():
             raise LtmError(f"lights {brief(points)} of a far-light store must lie inside the "
                            "unit disk (r = lx, s = ly, r^2 + s^2 < 1)")
