@@ -4,7 +4,8 @@ Run: ``python bench/heldout_photos.py [--data ../shared/data] [--out bench/resul
 
 * Accuracy (:func:`ltmstore.judge.photos.heldout_photos`): for each capture with a ``dirs.lp``
   hide every 6th light; for each SynthRTI scene fit on ``dome/`` and score on ``test/``. PSNR and
-  SSIM of 8-bit sRGB images, default pipeline beside PTM, HSH2, HSH3 and RBF.
+  SSIM of 8-bit sRGB images, default pipeline beside PTM, HSH2, HSH3, RBF and HSH3 + RBF
+  residual.
 * The lattice's cost: held-out PSNR of the luminance relit from the fit directly against relit
   bilinearly from the stored ``ltm`` lattice.
 * A figure: hidden photograph | default relit | best classic relit, for three captures.

@@ -126,7 +126,8 @@ def main() -> None:
         timings = {}
     else:
         sim = simulate_raw(acq, scene=args.scene, path_density=args.path_density,
-                           seed=args.seed, size=args.size, overwrite=True, progress=False)
+                           seed=args.seed, size=args.size, overwrite=True, progress=False,
+                           board=True, effects="none")  # issue 7's ideal phones
         timings = {"simulate_s": time.perf_counter() - t0}
     meta_path = acq / "acquisition.json"
     meta = json.loads(meta_path.read_text())

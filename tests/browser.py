@@ -35,9 +35,11 @@ def chromium_path() -> str:
 
 
 class Browser:
-    """One headless Chromium with one page of ``width`` x ``height`` CSS pixels."""
+    """One headless Chromium with one page of ``width`` x ``height`` CSS pixels; ``args``: extra
+    command-line flags (a fake camera, say)."""
 
-    def __init__(self, width: int = 1000, height: int = 700, timeout: float = 20) -> None:
+    def __init__(self, width: int = 1000, height: int = 700, timeout: float = 20,
+                 args: tuple[str, ...] = ()) -> None:
         from websockets.sync.client import connect
 
         executable = chromium_path()  # skips (or fails in CI) before anything starts
@@ -48,7 +50,7 @@ class Browser:
              f"--user-data-dir={self.profile}", f"--window-size={width},{height}",
              "--no-first-run", "--no-default-browser-check", "--disable-extensions",
              "--hide-scrollbars", "--force-device-scale-factor=1", "--mute-audio",
-             "about:blank"],
+             *args, "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         port = self._devtools_port(timeout)
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=timeout) as r:

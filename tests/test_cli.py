@@ -114,9 +114,11 @@ def test_relight_sum_and_negative_directions(small_store, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["both.png"]
 
 
-def test_physical_needs_the_object_extent(small_store, tmp_path):
-    """A near-light store whose acquisition declares no object extent: --method physical is
-    refused before anything is written (auto simply leaves the model out)."""
+def test_physical_needs_a_placeable_object(small_store, tmp_path):
+    """A near-light store that declares no object extent and whose lights stay on one side of
+    the object (a tenth of it under the path): the capture cannot place it, --method physical
+    is refused in one line and the previous ltm stays (auto falls back to the classic methods,
+    tests/test_placement.py)."""
     import shutil
 
     import zarr
@@ -127,7 +129,9 @@ def test_physical_needs_the_object_extent(small_store, tmp_path):
     acquisition = dict(group.attrs["acquisition"])
     del acquisition["object"]
     group.attrs["acquisition"] = acquisition
+    group["pose_valid"][:] = group["pose_valid"][:] & (group["pose_r"][:] < -0.06)
     before = hashlib.sha256((store / "ltm" / "zarr.json").read_bytes()).hexdigest()
     proc = run_ltm("reconstruct", store, "--method", "physical", "--overwrite")
-    one_line_error(proc, "--method physical needs each pixel's place under the near light")
+    one_line_error(proc, "the object's place on the light plane cannot be estimated from this "
+                         "capture: the lights")
     assert hashlib.sha256((store / "ltm" / "zarr.json").read_bytes()).hexdigest() == before

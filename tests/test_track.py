@@ -11,8 +11,8 @@ from ltmstore.capture.calibrate import Intrinsics, load_intrinsics
 from ltmstore.capture.track import (
     FramePose,
     TrackConfig,
-    _flag_out_of_plane,
     estimate_pose,
+    flag_out_of_plane,
     led_position,
     track_frame,
     track_video,
@@ -110,7 +110,7 @@ def test_out_of_plane_and_files_follow_the_contract(tmp_path):
 
     frames = [fp(i / 30, 0.3) for i in range(6)] + [fp(0.2, 0.25), fp(7 / 30, 0, "no_board"),
                                                      fp(8 / 30, 0.301)]
-    flagged = _flag_out_of_plane(frames, TrackConfig())
+    flagged = flag_out_of_plane(frames, TrackConfig())
     assert [f.status for f in flagged][6:] == ["out_of_plane", "no_board", "ok"]
     paths = write_tracks(tmp_path / "poses.csv", flagged)
     poses = load_poses(paths["poses"])  # ingest's reader accepts it unchanged

@@ -29,7 +29,8 @@ def raw_capture(tmp_path_factory):
     out = tmp_path_factory.mktemp("raw") / "capture"
     info = simulate_raw(out, scene="canvas", path_density=5.0, seed=SEED, size=24,
                         lattice=(12, 12), camera=PhoneCamera(size=(640, 360), focal_px=500.0),
-                        time_offset=OFFSET, calibration_views=10, progress=False)
+                        time_offset=OFFSET, calibration_views=10, progress=False,
+                        board=True, effects="none")  # the ideal phones of issue 7
     return out, info
 
 
@@ -108,7 +109,11 @@ def test_end_to_end_snr_close_to_true_poses(tracked, tmp_path, dask_cluster):
             ingest(folder, store, progress=False)
             reconstruct(store, client=client, lattice=(12, 12), progress=False)
             snr[name] = compare_stores(store, acq / "truth.zarr")["snr_y_db"]
-    assert abs(snr["true"] - snr["tracked"]) < 0.5, snr
+    # Issue 29's target: within 1 dB. At 24 px and 12 x 12 cells the gap is a lottery of the
+    # few samples near cell edges: true poses plus 0.13 mm noise per axis (the tracker's level)
+    # gave 16.21-16.91 dB over three noise seeds; this capture's tracked poses (0.21 mm RMS)
+    # measured 0.67-0.92 dB below the true ones.
+    assert abs(snr["true"] - snr["tracked"]) < 1.0, snr
 
 
 @pytest.mark.parametrize(("case", "pattern"), [

@@ -31,6 +31,8 @@ VIEW_COLUMNS = ("p", "q")
 MIN_POSES = 2
 MAX_JSON_BYTES = 1024 * 1024  # acquisition.json is a few hundred bytes
 PLANE_KEYS = {"r", "s", "height", "unit"}
+# Written by `ltm capture` while a capture is under way; removed only after acquisition.json
+INCOMPLETE_MARKER = "CAPTURE_INCOMPLETE"
 # A number as written in a CSV file: ASCII digits only (float() also takes "1_0" and other
 # scripts' digits, which no pose tracker writes).
 DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
@@ -58,6 +60,9 @@ class Acquisition:
         ``{"x": [left, right], "y": [bottom, top]}``: the object-plane rectangle the (rectified)
         video frame shows, plane units (key ``object``). It places every pixel under the near
         light, which the physical reflectance model (``--method physical``) needs.
+    camera_calibration : Path or None
+        Camera B's intrinsics file (key ``camera_calibration``, JSON written by
+        ``ltm calibrate``): ingest undoes its lens distortion.
     raw : dict
         The parsed ``acquisition.json``.
     """
@@ -70,12 +75,16 @@ class Acquisition:
     time_offset: float = 0.0
     view_plane: dict | None = None
     object_extent: dict | None = None
+    camera_calibration: Path | None = None
     raw: dict = field(default_factory=dict, compare=False, repr=False)
 
     def sha256(self) -> dict[str, str]:
-        """Hex SHA-256 of the video and the poses file (raises :class:`OSError` on a read
-        error, which may be transient)."""
-        return {"video": sha256_file(self.video), "poses": sha256_file(self.poses)}
+        """Hex SHA-256 of the video and the poses file, and of camera B's calibration when
+        declared (raises :class:`OSError` on a read error, which may be transient)."""
+        hashes = {"video": sha256_file(self.video), "poses": sha256_file(self.poses)}
+        if self.camera_calibration is not None:
+            hashes["camera_calibration"] = sha256_file(self.camera_calibration)
+        return hashes
 
 
 @dataclass(frozen=True)
@@ -191,6 +200,7 @@ def load_acquisition(folder: str | os.PathLike) -> Acquisition:
     folder = Path(folder)
     if not folder.is_dir():
         raise LtmError(f"acquisition folder {str(folder)!r} does not exist or is not a folder")
+    _refuse_incomplete(folder)
     meta_path = folder / "acquisition.json"
     resolve_inside(folder, meta_path.name, "acquisition file")  # a link may not leave it either
     meta = _read_json(meta_path)
@@ -213,8 +223,24 @@ def load_acquisition(folder: str | os.PathLike) -> Acquisition:
         time_offset=_time_offset(meta.get("time_offset", 0.0), where),
         view_plane=_view_plane(meta.get("view_plane"), where),
         object_extent=_object_extent(meta.get("object"), where),
+        camera_calibration=(None if meta.get("camera_calibration") is None else _existing_file(
+            folder, meta["camera_calibration"], f"{where}: camera_calibration")),
         raw=meta,
     )
+
+
+def _refuse_incomplete(folder: Path) -> None:
+    """A folder that ``ltm capture`` has not finished (it holds :data:`INCOMPLETE_MARKER`)."""
+    marker = folder / INCOMPLETE_MARKER
+    if not (marker.exists() or marker.is_symlink()):
+        return
+    try:
+        text = marker.read_text(encoding="utf-8", errors="replace") if marker.is_file() else ""
+    except OSError:
+        text = ""
+    why = " ".join(text[:300].split())
+    raise LtmError(f"capture in {str(folder)!r} is incomplete: {why or 'the capture stopped'} "
+                   f"(remove {INCOMPLETE_MARKER} only if you know the folder is whole)")
 
 
 def _read_json(path: Path) -> dict:

@@ -33,6 +33,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ltmstore.capture.acquisition import load_acquisition, load_poses, write_text_atomic
+from ltmstore.capture.lead import find_lead
 from ltmstore.capture.video import VideoReader, transfer_lut
 from ltmstore.core.errors import LtmError
 
@@ -76,8 +77,9 @@ def _basis(r: np.ndarray, s: np.ndarray, z: np.ndarray, scale: tuple) -> np.ndar
 class OffsetCost:
     """Residual of the brightness fit as a function of the clock offset."""
 
-    def __init__(self, brightness: np.ndarray, fps: float, poses) -> None:
-        self.y = brightness - brightness.mean(axis=0)
+    def __init__(self, brightness: np.ndarray, fps: float, poses, skip_frames: int = 0) -> None:
+        self.skip_frames = skip_frames
+        self.y = brightness - brightness[skip_frames:].mean(axis=0)
         self.total = self.y.sum(axis=1)
         self.t = np.arange(len(brightness)) / fps
         self.poses = poses
@@ -123,7 +125,7 @@ class OffsetCost:
         """Frames of video B whose light is known at offset ``tau`` (no long pose gap)."""
         u = self.t - tau
         tp = self.poses.t
-        inside = (u >= tp[0]) & (u <= tp[-1])
+        inside = (u >= tp[0]) & (u <= tp[-1]) & (np.arange(len(u)) >= self.skip_frames)
         i = np.clip(np.searchsorted(tp, u) - 1, 0, len(self.gaps) - 1)
         return inside & (self.gaps[i] <= self.max_gap)
 
@@ -144,7 +146,7 @@ class OffsetCost:
 
 
 def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
-                    max_offset: float = DEFAULT_MAX_OFFSET) -> dict:
+                    max_offset: float = DEFAULT_MAX_OFFSET, skip_frames: int = 0) -> dict:
     """Estimate the clock offset ``tau`` (``t_B = t_poses + tau``) with its confidence.
 
     Parameters
@@ -157,6 +159,9 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
         The tracked light path.
     max_offset : float
         Offsets searched: ``[-max_offset, max_offset]`` seconds.
+    skip_frames : int
+        Leading frames of video B left out of the fit (the LED-off lead: its brightness is
+        the room light's, not a function of the light's position).
 
     Returns
     -------
@@ -174,7 +179,7 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
         If video B carries no usable signal (the light path explains too little of its
         brightness at any offset, or no offset stands out).
     """
-    cost = OffsetCost(brightness, fps, poses)
+    cost = OffsetCost(brightness, fps, poses, skip_frames)
     step = 0.5 / fps
     taus = np.arange(-max_offset, max_offset + step / 2, step)
     costs = np.array([cost.coarse(t) for t in taus])
@@ -272,7 +277,10 @@ def sync_acquisition(acq_dir: str | os.PathLike, *, max_offset: float = DEFAULT_
                        f"{2 * max_offset:g} s, see --max-offset, and within a factor "
                        f"{1 / MIN_OVERLAP:g})")
     brightness, fps = block_brightness(acq.video, acq.transfer, progress=progress)
-    result = estimate_offset(brightness, fps, poses, max_offset=max_offset)
+    lead = find_lead(brightness.mean(axis=1), fps)
+    skip = 0 if lead is None else lead.excluded[1]
+    result = estimate_offset(brightness, fps, poses, max_offset=max_offset, skip_frames=skip)
+    result["led_off_frames"] = skip
     meta = dict(acq.raw)
     meta["time_offset"] = result["time_offset"]
     meta["time_offset_estimate"] = {k: v for k, v in result.items() if k != "time_offset"}

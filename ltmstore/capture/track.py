@@ -100,13 +100,45 @@ def estimate_pose(obj: np.ndarray, img: np.ndarray,
     return cv2.Rodrigues(rvec)[0], tvec.ravel(), rms
 
 
+def camera_led(r_co: np.ndarray, t: np.ndarray, led_offset,
+               normal_sign: float = 1.0) -> tuple[np.ndarray, float]:
+    """LED position in the target's own coordinates and the tilt of the optical axis.
+
+    Parameters
+    ----------
+    r_co, t : ndarray
+        Target-to-camera rotation (3, 3) and translation (3,).
+    led_offset : (float, float, float)
+        LED in camera axes, metres.
+    normal_sign : float
+        ``+1`` when the target's ``z`` axis points away from the camera (a board: into the
+        page), ``-1`` when it points towards it (plane coordinates: ``z`` above the plane).
+
+    Returns
+    -------
+    (ndarray, float)
+        LED in target coordinates and the tilt (degrees) of the optical axis from the normal.
+    """
+    centre = -r_co.T @ t
+    led = centre + r_co.T @ np.asarray(led_offset, np.float64)
+    tilt = float(np.degrees(np.arccos(np.clip(normal_sign * r_co[2, 2], -1.0, 1.0))))
+    return led, tilt
+
+
 def led_position(spec: BoardSpec, r_cb: np.ndarray, t: np.ndarray,
                  led_offset) -> tuple[np.ndarray, float]:
     """LED in plane coordinates and the tilt (degrees) of the optical axis from the normal."""
-    centre = -r_cb.T @ t
-    led_board = centre + r_cb.T @ np.asarray(led_offset, np.float64)
-    tilt = float(np.degrees(np.arccos(np.clip(r_cb[2, 2], -1.0, 1.0))))
+    led_board, tilt = camera_led(r_cb, t, led_offset)
     return spec.to_plane(led_board), tilt
+
+
+def checked_pose(t: float, led: np.ndarray, points: int, rms: float, tilt: float,
+                 intr: Intrinsics, config: TrackConfig) -> FramePose:
+    """A frame's pose with its status from the reprojection and tilt limits (``ok``,
+    ``poor_pose`` or ``tilted``; ``out_of_plane`` is decided over the whole video)."""
+    limit = config.max_reprojection_px * intr.image_size[0] / 1280
+    status = "poor_pose" if rms > limit else "tilted" if tilt > config.max_tilt_deg else "ok"
+    return FramePose(t, led, points, rms, tilt, status)
 
 
 def track_frame(detector: BoardDetector, gray: np.ndarray, t: float, intr: Intrinsics,
@@ -121,9 +153,22 @@ def track_frame(detector: BoardDetector, gray: np.ndarray, t: float, intr: Intri
         return FramePose(t, nan, len(obj), np.nan, np.nan, "poor_pose")
     r_cb, tvec, rms = pose
     led, tilt = led_position(detector.spec, r_cb, tvec, config.led_offset)
-    limit = config.max_reprojection_px * intr.image_size[0] / 1280
-    status = "poor_pose" if rms > limit else "tilted" if tilt > config.max_tilt_deg else "ok"
-    return FramePose(t, led, len(obj), rms, tilt, status)
+    return checked_pose(t, led, len(obj), rms, tilt, intr, config)
+
+
+def check_frame_size(gray: np.ndarray, intr: Intrinsics, what: str) -> None:
+    """Refuse a frame (of ``what``, e.g. ``"video A 'a.mp4'"``) whose size is not the
+    intrinsics' image size."""
+    if tuple(gray.shape[::-1]) != tuple(intr.image_size):
+        raise LtmError(f"{what} is {gray.shape[1]}x{gray.shape[0]} but the "
+                       f"intrinsics are for {intr.image_size[0]}x{intr.image_size[1]}; "
+                       "expected intrinsics calibrated for this camera and resolution")
+
+
+def enough_posed(results: list[FramePose]) -> bool:
+    """Whether at least :data:`MIN_TRACKED_FRACTION` of the frames (and 2) have a good pose."""
+    good = sum(r.status == "ok" for r in results)
+    return good >= max(2, MIN_TRACKED_FRACTION * len(results))
 
 
 def track_video(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics,
@@ -139,23 +184,23 @@ def track_video(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics,
     detector = BoardDetector(spec)
     results = []
     for i, t, gray in video_frames(video, what="video A", progress=progress, desc="track"):
-        if i == 0 and tuple(gray.shape[::-1]) != tuple(intr.image_size):
-            raise LtmError(f"video A {str(video)!r} is {gray.shape[1]}x{gray.shape[0]} but the "
-                           f"intrinsics are for {intr.image_size[0]}x{intr.image_size[1]}; "
-                           "expected intrinsics calibrated for this camera and resolution")
+        if i == 0:
+            check_frame_size(gray, intr, f"video A {str(video)!r}")
         results.append(track_frame(detector, gray, t, intr, config))
-    good = sum(r.status == "ok" for r in results)
-    if good < max(2, MIN_TRACKED_FRACTION * len(results)):
+    if not enough_posed(results):
+        good = sum(r.status == "ok" for r in results)
         found = sum(r.status != "no_board" for r in results)
         raise LtmError(f"board {spec.squares[0]}x{spec.squares[1]} ({spec.dictionary}) found in "
                        f"{found} and posed in {good} of {len(results)} frames of video A "
                        f"{str(video)!r}; expected it in view in at least "
                        f"{MIN_TRACKED_FRACTION:.0%} of the frames (wrong --board spec, or board "
                        "not in view?)")
-    return _flag_out_of_plane(results, config)
+    return flag_out_of_plane(results, config)
 
 
-def _flag_out_of_plane(results: list[FramePose], config: TrackConfig) -> list[FramePose]:
+def flag_out_of_plane(results: list[FramePose], config: TrackConfig) -> list[FramePose]:
+    """Flag the good frames whose LED is off the plane height (``config.height``, default the
+    median of the good frames) by more than the tolerance as ``out_of_plane``."""
     z = np.array([r.led[2] for r in results if r.status == "ok"])
     height = float(np.median(z)) if config.height is None else float(config.height)
     tol = Z_TOLERANCE_FRACTION * abs(height) if config.z_tolerance is None else config.z_tolerance
@@ -163,10 +208,12 @@ def _flag_out_of_plane(results: list[FramePose], config: TrackConfig) -> list[Fr
             if r.status == "ok" and abs(r.led[2] - height) > tol else r for r in results]
 
 
-def write_tracks(out: str | os.PathLike, results: list[FramePose]) -> dict:
+def write_tracks(out: str | os.PathLike, results: list[FramePose], *,
+                 count_column: str = "corners") -> dict:
     """Write ``poses.csv`` (good and out-of-plane frames) and ``<stem>.frames.csv`` (all).
 
-    Both are written beside and moved into place, so a failure leaves no half-written file.
+    ``count_column`` names the per-frame point count (board corners, painting matches). Both
+    are written beside and moved into place, so a failure leaves no half-written file.
     """
     out = Path(out)
     frames_csv = out.with_name(out.stem + ".frames.csv")
@@ -176,9 +223,41 @@ def write_tracks(out: str | os.PathLike, results: list[FramePose]) -> dict:
                      f"{r.reprojection_px:.4f},{r.tilt_deg:.3f},{r.status}\n"
                      for i, r in enumerate(results))
     write_text_atomic(out, "t,r,s,z\n" + rows, what="poses")
-    write_text_atomic(frames_csv, "frame,t,r,s,z,corners,reprojection_px,tilt_deg,status\n"
-                      + detail, what="per-frame tracking")
+    write_text_atomic(frames_csv, f"frame,t,r,s,z,{count_column},reprojection_px,tilt_deg,"
+                      "status\n" + detail, what="per-frame tracking")
     return {"poses": str(out), "frames_csv": str(frames_csv)}
+
+
+def refuse_existing(out: str | os.PathLike, overwrite: bool) -> Path:
+    """``out`` as a path, refused when it exists and ``overwrite`` is not set."""
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    return out
+
+
+def save_tracks(out: Path, results: list[FramePose], statuses: tuple[str, ...], *,
+                count_column: str = "corners") -> dict:
+    """Write the poses files (:func:`write_tracks`) and summarise the tracking.
+
+    Returns
+    -------
+    dict
+        ``frames``, ``rows`` (written to ``out``), ``status`` counts, ``height`` (median LED
+        height), ``reprojection_px`` (median and 95th percentile), the median point count
+        (``count_column``), ``longest_gap_s`` between written rows, and the paths.
+    """
+    paths = write_tracks(out, results, count_column=count_column)
+    kept = [r for r in results if r.status in WRITTEN]
+    t = np.array([r.t for r in kept])
+    rms = np.array([r.reprojection_px for r in kept])
+    return {"frames": len(results), "rows": len(kept),
+            "status": {s: sum(r.status == s for r in results) for s in statuses},
+            "height": float(np.median([r.led[2] for r in kept])),
+            "reprojection_px": {"median": float(np.median(rms)),
+                                "p95": float(np.percentile(rms, 95))},
+            count_column: float(np.median([r.corners for r in kept])),
+            "longest_gap_s": float(np.diff(t).max()) if len(t) > 1 else 0.0, **paths}
 
 
 def track(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics, out: str | os.PathLike,
@@ -205,22 +284,8 @@ def track(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics, out: str 
     Returns
     -------
     dict
-        ``frames``, ``rows`` (written to ``out``), ``status`` counts, ``height`` (median LED
-        height), ``reprojection_px`` (median and 95th percentile), ``corners`` (median),
-        ``longest_gap_s`` between written rows, and the paths.
+        As :func:`save_tracks` (``corners``: the median corner count).
     """
-    out = Path(out)
-    if out.exists() and not overwrite:
-        raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
+    out = refuse_existing(out, overwrite)
     results = track_video(video, spec, intr, config, progress=progress)
-    paths = write_tracks(out, results)
-    kept = [r for r in results if r.status in WRITTEN]
-    t = np.array([r.t for r in kept])
-    rms = np.array([r.reprojection_px for r in kept])
-    return {"frames": len(results), "rows": len(kept),
-            "status": {s: sum(r.status == s for r in results) for s in STATUSES},
-            "height": float(np.median([r.led[2] for r in kept])),
-            "reprojection_px": {"median": float(np.median(rms)),
-                                "p95": float(np.percentile(rms, 95))},
-            "corners": float(np.median([r.corners for r in kept])),
-            "longest_gap_s": float(np.diff(t).max()) if len(t) > 1 else 0.0, **paths}
+    return save_tracks(out, results, STATUSES)

@@ -103,13 +103,17 @@ class VideoReader:
 
     def _decoded(self) -> Iterator[tuple[int, av.VideoFrame, list[str]]]:
         """Decoded frames with their index and the decoder's error messages."""
-        level = av.logging.get_level()
+        level, skip = av.logging.get_level(), av.logging.get_skip_repeated()
         av.logging.set_level(av.logging.ERROR)  # FFmpeg's messages reach the capture
+        # PyAV drops a message that repeats the last one: a second decode of the same damaged
+        # video (ingest scans it before it reads it) would then look clean.
+        av.logging.set_skip_repeated(False)
         try:
             with av.logging.Capture() as logs:
                 yield from self._frames_logged(logs)
         finally:
             av.logging.set_level(level)
+            av.logging.set_skip_repeated(skip)
 
     def _frames_logged(self, logs: list) -> Iterator[tuple[int, av.VideoFrame, list[str]]]:
         start, base = self._stream.start_time or 0, self._stream.time_base

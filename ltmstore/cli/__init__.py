@@ -3,7 +3,8 @@
 One module per command group, each with a ``register(sub)`` that adds its commands:
 :mod:`~ltmstore.cli.pipeline` (demo, simulate, ingest, reconstruct, relight, evaluate, bench,
 info), :mod:`~ltmstore.cli.check`, :mod:`~ltmstore.cli.share` (export, maps, view),
-:mod:`~ltmstore.cli.capture` (board, calibrate, track, sync) and :mod:`~ltmstore.cli.archive`.
+:mod:`~ltmstore.cli.capture` (board, calibrate, track, sync), :mod:`~ltmstore.cli.live`
+(capture) and :mod:`~ltmstore.cli.archive`.
 The CLI sits on top: it may import every part of the package, and ``flows`` for the Prefect-run
 commands.
 """
@@ -51,7 +52,7 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ltm`` parser with every command group registered."""
-    from ltmstore.cli import archive, capture, check, pipeline, share
+    from ltmstore.cli import archive, capture, check, live, pipeline, share
 
     parser = Parser(
         prog="ltm", description="Relightable photographs from handheld light transport "
@@ -59,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=Parser)
-    for group in (pipeline, check, share, capture, archive):
+    for group in (pipeline, check, share, capture, live, archive):
         group.register(sub)
     return parser
 

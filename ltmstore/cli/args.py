@@ -28,7 +28,7 @@ def numbers(names: str, unit: str = "plane units"):
 
 
 # Options whose values are numbers that may start with a minus (``--light -0.1,0``, ``--ev -1``).
-SIGNED_OPTIONS = ("--light", "--direction", "--view", "--ev")
+SIGNED_OPTIONS = ("--light", "--direction", "--view", "--ev", "--plane", "--led-offset")
 _SIGNED_VALUE = re.compile(r"^-[0-9.]")
 
 

@@ -29,12 +29,25 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("track", help="light positions (poses.csv) from phone A's video",
-                       description="Detect the board in every frame, estimate phone A's pose, "
+                       description="Find the board (--board) or the painting itself "
+                       "(--painting, --painting-width) in every frame, estimate phone A's pose, "
                        "place the LED at its offset and write poses.csv (plane coordinates "
-                       "from the board centre, frame times of video A) plus "
-                       "poses.frames.csv with every frame's status.")
+                       "from the board's or the painting's centre, frame times of video A) "
+                       "plus poses.frames.csv with every frame's status.")
     p.add_argument("video", help="phone A's video")
-    p.add_argument("--board", required=True, help="board spec JSON from `ltm board`")
+    target = p.add_mutually_exclusive_group(required=True)
+    target.add_argument("--board", help="board spec JSON from `ltm board`")
+    target.add_argument("--painting", metavar="MAP", help="no board: a PNG/JPEG of the painting "
+                        "front-on, cropped to its edges, or camera B's video of it")
+    p.add_argument("--painting-width", type=number, metavar="W",
+                   help="with --painting: the painting's width in metres (tape measure)")
+    p.add_argument("--painting-intrinsics", metavar="JSON",
+                   help="with --painting VIDEO: camera B's intrinsics (`ltm calibrate`), to undo "
+                   "its lens distortion before the map is made")
+    p.add_argument("--readout-ms", type=number, default=0.0, metavar="MS",
+                   help="with --painting: phone A's rolling-shutter readout time, top row to "
+                   "bottom row, ms (phones: 10-30; default: %(default)s, no correction: a "
+                   "wrong value costs more frames than none)")
     p.add_argument("--intrinsics", required=True, help="JSON from `ltm calibrate`")
     p.add_argument("--led-offset", type=numbers("DX,DY,DZ", "metres"), default=(0.0, 0.0, 0.0),
                    help="LED position from the camera, metres, camera axes (x right, y down, "
@@ -44,7 +57,7 @@ def register(sub) -> None:
     p.add_argument("--max-reprojection", type=number, default=1.5,
                    help="largest RMS reprojection error, px at 1280 wide (default: %(default)s)")
     p.add_argument("--max-tilt", type=number, default=20.0,
-                   help="largest tilt from the board normal, degrees (default: %(default)s)")
+                   help="largest tilt from the plane's normal, degrees (default: %(default)s)")
     add_output(p, "poses.csv", "poses file")
     p.set_defaults(func=cmd_track)
 
@@ -86,12 +99,31 @@ def cmd_calibrate(a: argparse.Namespace) -> None:
 def cmd_track(a: argparse.Namespace) -> None:
     from ltmstore.capture.board import load_board
     from ltmstore.capture.calibrate import load_intrinsics
+    from ltmstore.capture.painting_track import PaintingMap, check_width, track_painting
     from ltmstore.capture.track import TrackConfig, track
+    from ltmstore.core.errors import LtmError
 
-    spec = load_board(a.board)
+    if a.painting is None and a.painting_width is not None:
+        raise LtmError("--painting-width goes with --painting (boardless tracking); the board "
+                       "gives its own scale")
+    if a.painting is not None and a.painting_width is None:
+        raise LtmError("--painting needs --painting-width W, the painting's width in metres")
+    if a.painting is None and a.painting_intrinsics is not None:
+        raise LtmError("--painting-intrinsics goes with --painting VIDEO (camera B's video as "
+                       "the map)")
+    width = check_width(a.painting_width) if a.painting is not None else None
+    if not 0 <= a.readout_ms <= 100:
+        raise LtmError(f"--readout-ms {a.readout_ms:g} must be 0-100 ms (phones: 10-30)")
     intr = load_intrinsics(a.intrinsics)
     config = TrackConfig(led_offset=a.led_offset, max_reprojection_px=a.max_reprojection,
                          max_tilt_deg=a.max_tilt, height=a.height)
+    if a.painting is not None:
+        intr_b = load_intrinsics(a.painting_intrinsics) if a.painting_intrinsics else None
+        painting = PaintingMap.load(a.painting, width, intr_b)
+        print_json(track_painting(a.video, painting, intr, a.output, config=config,
+                                  readout_s=a.readout_ms / 1000, overwrite=a.overwrite))
+        return
+    spec = load_board(a.board)
     print_json(track(a.video, spec, intr, a.output, config=config, overwrite=a.overwrite))
 
 

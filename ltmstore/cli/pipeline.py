@@ -40,8 +40,16 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--lossy", action="store_true", help="mp4v .mp4 instead of lossless FFV1 .mkv")
     p.add_argument("--raw", action="store_true",
-                   help="two-phone raw capture: phone A's video of a ChArUco board, video B, "
-                   "an unknown clock offset and no poses file (see ltm track, ltm sync)")
+                   help="two-phone raw capture: phone A's video of the painting it lights, "
+                   "video B, an unknown clock offset and no poses file (see ltm calibrate, "
+                   "ltm track, ltm sync)")
+    p.add_argument("--board", action="store_true",
+                   help="with --raw: phone A films an A0 ChArUco board laid around the painting "
+                   "(default: the painting alone, on a plain wall)")
+    p.add_argument("--effects", default=None, metavar="all|none|LIST",
+                   help="with --raw: phone effects at typical strength (default: all), none, or "
+                   "a comma list of distortion, rolling-shutter, motion-blur, auto-exposure, "
+                   "white-balance, ambient, led-falloff, h264")
     p.add_argument("--size", type=int, default=128, help="image side in pixels")
     p.add_argument("--6d", dest="six_d", action="store_true",
                    help="6D: camera B moves over a view plane too (view_plane, p, q poses, "
@@ -87,7 +95,8 @@ def register(sub) -> None:
     p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *sorted(METHODS)],
                    help="solver (default: %(default)s: per pixel tile, the method and model "
                    "size with the lowest held-out error, physical among them where "
-                   "acquisition.json declares the object's extent; lars is the slow per-pixel "
+                   "acquisition.json declares the object's extent or the capture places it "
+                   "(see ltm info: placement); lars is the slow per-pixel "
                    "reference). A far-light store takes auto, ptm, hsh, rbf or physical (the "
                    "surface model and its maps, see ltm maps)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
@@ -166,8 +175,9 @@ def register(sub) -> None:
                    help="pixels sampled for the held-out test (default: %(default)s)")
     p.add_argument("--holdout-lights", type=int, metavar="EVERY",
                    help="a store made by ingest-rti: hide every EVERY-th light of its .lp, fit "
-                   "the default pipeline and PTM, HSH2, HSH3, RBF on the rest, and score the "
-                   "relit images against the hidden photographs (PSNR, SSIM of 8-bit sRGB)")
+                   "the default pipeline and PTM, HSH2, HSH3, RBF, HSH3+RBF on the rest, and "
+                   "score the relit images against the hidden photographs (PSNR, SSIM of "
+                   "8-bit sRGB)")
     p.add_argument("--test-lights", metavar="TEST.lp",
                    help="a store made by ingest-rti: fit on all its lights, score at the lights "
                    "and photographs of this .lp (SynthRTI: dome/ then test/)")
@@ -197,6 +207,8 @@ def cmd_demo(a: argparse.Namespace) -> None:
 def cmd_simulate(a: argparse.Namespace) -> None:
     if getattr(a, "raw", False):
         return cmd_simulate_raw(a)
+    if getattr(a, "board", False) or getattr(a, "effects", None) is not None:
+        raise LtmError("--board and --effects describe a two-phone capture; they need --raw")
     from ltmstore.synthetic.simulate import simulate_acquisition
 
     density = {} if a.path_density is None else {"path_density": a.path_density}
@@ -207,14 +219,16 @@ def cmd_simulate(a: argparse.Namespace) -> None:
 
 
 def cmd_simulate_raw(a: argparse.Namespace) -> None:
+    from ltmstore.synthetic.phone_effects import parse_effects
     from ltmstore.synthetic.raw import simulate_raw
 
     if getattr(a, "six_d", False) or a.lossy:
-        raise LtmError("--raw simulates a 4D capture with lossless videos; it cannot be "
-                       "combined with --6d or --lossy")
+        raise LtmError("--raw simulates a 4D capture (H.264 or lossless videos: see --effects); "
+                       "it cannot be combined with --6d or --lossy")
+    effects = parse_effects("all" if a.effects is None else a.effects)
     density = {} if a.path_density is None else {"path_density": a.path_density}
     print_json(simulate_raw(a.out, scene=a.scene, seed=a.seed, size=a.size,
-                             overwrite=a.overwrite, **density))
+                            overwrite=a.overwrite, board=a.board, effects=effects, **density))
 
 
 def cmd_ingest(a: argparse.Namespace) -> None:
@@ -260,8 +274,20 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
           + ("" if density is None else f"path density {density:.1f}/{plane_unit(a.store)}  ")
           + f"method {info['method']} {summary_of(info['methods_per_tile'])}  "
           + ("at each photograph's exposure  " if info.get("exposure_fitted") else "")
+          + (f"surface model skipped (did not pay: ~{skipped:.0f} s saved)  "
+             if (skipped := info["timings"].get("surface_skipped_s")) is not None else "")
           + f"resample {info['timings']['resample_s']:.1f} s  "
-          f"solve {info['timings']['solve_s']:.1f} s")
+          f"solve {info['timings']['solve_s']:.1f} s" + placement_note(info.get("placement")))
+
+
+def placement_note(record: dict | None) -> str:
+    """Where the surface model placed an object the acquisition did not declare, with the
+    estimate's uncertainty (empty otherwise)."""
+    if not record or record.get("source") != "estimated":
+        return ""
+    (left, right), (bottom, top) = record["extent"]["x"], record["extent"]["y"]
+    return (f"  object estimated at x {left:.4g}..{right:.4g}, y {bottom:.4g}..{top:.4g} "
+            f"(+-{record['estimate']['uncertainty_pixels']:.1f} px)")
 
 
 def plane_unit(store: str) -> str:

@@ -144,6 +144,17 @@ class Plane:
             ) from exc
 
 
+def object_extent(attrs: dict) -> dict | None:
+    """The object extent (``{"x": [left, right], "y": [bottom, top]}``) that places a store's
+    pixels on the object plane: the one its reconstruct stage used (``placement.extent``:
+    declared or estimated from the capture), else the acquisition's declared ``object``, else
+    None. ``attrs`` are the store's group attributes."""
+    record = ((attrs.get("stages") or {}).get("reconstruct") or {}).get("placement") or {}
+    if "extent" in record:
+        return record["extent"]
+    return (attrs.get("acquisition") or {}).get("object")
+
+
 def object_pixels(extent: dict, image: tuple[int, int], rows: slice, cols: slice) -> np.ndarray:
     """Object-plane ``(X, Y)`` of the pixel centres ``rows x cols`` of an ``image (H, W)`` that
     shows ``extent = {"x": [left, right], "y": [bottom, top]}`` (``acquisition.json``'s

@@ -288,8 +288,9 @@ def _has_surface(record: dict, acquisition: dict, method_map: Meta | None, far: 
         methods = meta.get("attributes", {}).get("methods", [])
         return any(str(m).startswith(SURFACE_PREFIX) for m in methods)
     lattice = record.get("lattice", {}).get("dims", [])
-    return (record.get("method") in ("auto", "physical") and "object" in acquisition
-            and len(lattice) == 2)
+    placed = "object" in acquisition if "placement" not in record \
+        else bool((record["placement"] or {}).get("extent"))  # declared or estimated
+    return record.get("method") in ("auto", "physical") and placed and len(lattice) == 2
 
 
 def size_damage(metas: dict[str, Meta], attrs: dict) -> list[str]:

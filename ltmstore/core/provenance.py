@@ -47,6 +47,23 @@ def software() -> dict:
     return {"name": "ltmstore", "version": version(), "commit": commit()}
 
 
+def _placement(record: dict) -> dict:
+    """Where the surface model placed the object (``ltm info``): the source, the extent used,
+    and the estimate from the capture with its uncertainty (plane units and pixels)."""
+    found = record.get("estimate") or {}
+    out = {"source": record.get("source"), "extent": record.get("extent")}
+    if found:
+        out["estimated"] = {"extent": found.get("extent"), "sigma": found.get("sigma"),
+                            "uncertainty": found.get("uncertainty"),
+                            "sigma_pixels": found.get("sigma_pixels"),
+                            "uncertainty_pixels": found.get("uncertainty_pixels"),
+                            "support": found.get("support")}
+    for key in ("disagreement", "reason"):
+        if key in record:
+            out[key] = record[key]
+    return out
+
+
 def summary(attrs: dict) -> dict:
     """A store's provenance from its group attributes.
 
@@ -61,7 +78,9 @@ def summary(attrs: dict) -> dict:
         ``complete`` (every recorded stage finished and ``reconstruct`` among them),
         ``software`` (of the last completed stage), ``inputs`` (source, file names, sha256),
         ``parameters`` (of the reconstruct stage: lattice, method, solver settings, the run
-        key), ``sampling`` (K, M, K/M, path density), ``frames`` (of ingest: how many, how
+        key), ``sampling`` (K, M, K/M, path density), ``placement`` (near light: where the
+        surface model placed the object, declared or estimated, with the estimate's
+        uncertainty), ``frames`` (of ingest: how many, how
         many valid, rejected per reason, e.g. ``occluded``, and dropped from a damaged video;
         ``stored: false`` once ``ltm compact`` removed them), ``compact`` (when the store was
         compacted: precision, SNR of a lossy LTM, whether frames were dropped),
@@ -90,6 +109,7 @@ def summary(attrs: dict) -> dict:
                                            "lattice", "lattice_choice", "plan") if k in rec},
         "sampling": {k: sampling[k] for k in ("K", "M", "sampling_ratio", "path_density")
                      if k in sampling},
+        **({"placement": _placement(rec["placement"])} if rec.get("placement") else {}),
         "frames": {**{k: ingest[k] for k in ("n_frames", "n_valid", "rejected",
                                               "dropped_frames") if k in ingest},
                    **({"stored": False, "removed_by": "ltm compact"}

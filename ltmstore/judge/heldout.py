@@ -12,7 +12,7 @@ from itertools import product
 
 import numpy as np
 
-from ltmstore.core.dims import SAMPLES, Lattice, object_pixels
+from ltmstore.core.dims import SAMPLES, Lattice, object_extent, object_pixels
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store, stages
 from ltmstore.solve import Geometry
@@ -90,7 +90,7 @@ def heldout_store(store: str | os.PathLike, *, method: str = "cs", folds: int = 
     start = time.perf_counter()
     samples, pixels = _pick_pixels(ds[SAMPLES].data, int(max_pixels),
                                    np.random.default_rng([seed, 707]),
-                                   ds.attrs["acquisition"].get("object"))
+                                   object_extent(ds.attrs))
     geometry = store_geometry(ds).with_pixels(pixels)
     result = heldout_error(samples, geometry, solver, folds=folds, seed=seed, params=params,
                            fraction=fraction, block=block)

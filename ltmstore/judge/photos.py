@@ -14,8 +14,9 @@ Scored side by side on the same lights: ``default`` (the project's pipeline: ``i
 the training lights, ``reconstruct`` with its defaults, ``relight`` at the held-out directions)
 and the classic fits done here on the same training photographs, per RGB channel on the
 sRGB-encoded values (as the RTI world's fitters do), at the exact light directions: ``ptm``,
-``hsh2``, ``hsh3`` and ``rbf`` (Gaussian width and smoothing chosen by leave-one-out over the
-whole image, :mod:`ltmstore.solve.lightfit`).
+``hsh2``, ``hsh3``, ``rbf`` (Gaussian width and smoothing chosen by leave-one-out over the
+whole image, :mod:`ltmstore.solve.lightfit`) and ``hsh3+rbf`` (HSH order 3 plus an RBF of its
+residual, the RBF chosen the same way).
 """
 
 from __future__ import annotations
@@ -33,12 +34,12 @@ from ltmstore.capture.lp import decode_image, read_lp
 from ltmstore.core.dims import LUMA
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import encode, srgb_to_linear
-from ltmstore.solve.lightfit import Model, choose, rbf_models, relit
+from ltmstore.solve.lightfit import HSH_RBF, Model, choose, hsh_rbf_models, rbf_models, relit
 from ltmstore.stages.ingest_rti import ingest_rti
 from ltmstore.stages.reconstruct import reconstruct
 from ltmstore.stages.relight import relight
 
-CLASSIC = ("ptm", "hsh2", "hsh3", "rbf")
+CLASSIC = ("ptm", "hsh2", "hsh3", "rbf", HSH_RBF)
 METHODS = ("default", *CLASSIC)
 RBF_CHOICE_PIXELS = 20000  # pixels whose leave-one-out error picks the RBF width and smoothing
 
@@ -87,10 +88,11 @@ def classic_relit(train8: np.ndarray, train_dirs: np.ndarray, query: np.ndarray,
     """A classic fit of 8-bit sRGB photographs ``train8 (n, H, W, 3)`` at ``train_dirs``,
     relit at ``query (q, 3)``: ``(q, H, W, 3)`` linear RGB and the model's full name."""
     train = train8.astype(np.float32) / 255
-    if method == "rbf":
+    if method in ("rbf", HSH_RBF):
         luminance = (train @ LUMA.astype(np.float32)).reshape(len(train), -1)
         step = max(1, luminance.shape[1] // RBF_CHOICE_PIXELS)
-        model, _ = choose(luminance[:, ::step], train_dirs, rbf_models())
+        family = rbf_models() if method == "rbf" else hsh_rbf_models()
+        model, _ = choose(luminance[:, ::step], train_dirs, family)
     elif method in CLASSIC:
         model = Model(method)
     else:

@@ -37,7 +37,8 @@ class Geometry:
     pixels : ndarray of shape (n, 2), optional
         Object-plane position ``(X, Y)`` of the pixel of each row of the batch (plane units,
         the axes of ``r, s``); ``None`` where the acquisition does not declare the object's
-        extent. A method that slices rows of a batch slices these with :meth:`take`.
+        extent and the capture cannot place it (:mod:`ltmstore.stages.placement`). A method
+        that slices rows of a batch slices these with :meth:`take`.
     """
 
     lattice: Lattice

@@ -15,7 +15,10 @@ Models (:class:`Model`), smallest first:
   constant (far from every light it tends to that constant, never to 0 or to infinity),
   ``WIDTH`` the kernel's standard deviation (chord length) and ``SMOOTHING`` the ridge added to
   the kernel's unit diagonal; :data:`RBF_WIDTHS` x :data:`RBF_SMOOTHING` are the candidates,
-  chosen by leave-one-out.
+  chosen by leave-one-out;
+* ``hsh3+rbf:WIDTH:SMOOTHING``: HSH of order 3 plus the same RBF interpolating its residual
+  (the RTI world's HSH + RBF residual fit): ``B(q) c + R(q) (y - B c)`` with ``c`` the HSH
+  least-squares coefficients, still linear in ``y``.
 """
 
 from __future__ import annotations
@@ -32,12 +35,14 @@ from ltmstore.solve.ptm import ptm_basis
 RBF_WIDTHS = (0.1, 0.15, 0.2, 0.3, 0.45, 0.7)
 RBF_SMOOTHING = (1e-3, 1e-2, 1e-1)
 TIE = 0.01  # a model within this relative leave-one-out MSE of the best counts as a tie
+HSH_RBF = "hsh3+rbf"  # family of HSH order 3 plus an RBF of its residual
 BASES = {"ptm": ptm_basis, "hsh2": lambda d: hsh_basis(d, 2), "hsh3": lambda d: hsh_basis(d, 3)}
 
 
 @dataclass(frozen=True)
 class Model:
-    """One far-light model: ``name`` is ``ptm``, ``hsh2``, ``hsh3`` or ``rbf:WIDTH:SMOOTHING``."""
+    """One far-light model: ``name`` is ``ptm``, ``hsh2``, ``hsh3``, ``rbf:WIDTH:SMOOTHING`` or
+    ``hsh3+rbf:WIDTH:SMOOTHING``."""
 
     name: str
 
@@ -49,6 +54,8 @@ class Model:
         """Number of free coefficients (ties go to the smaller model)."""
         if self.family == "rbf":
             return n_lights + 1
+        if self.family == HSH_RBF:
+            return n_lights + 1 + BASES["hsh3"](np.array([[0.0, 0.0, 1.0]])).shape[1]
         return BASES[self.family](np.array([[0.0, 0.0, 1.0]])).shape[1]
 
     def weights(self, train: np.ndarray, query: np.ndarray) -> np.ndarray:
@@ -57,6 +64,12 @@ class Model:
         if self.family in BASES:
             basis = BASES[self.family]
             return basis(query) @ np.linalg.pinv(basis(train))
+        if self.family == HSH_RBF:  # HSH, plus the RBF of its residual at the training lights
+            basis = BASES["hsh3"]
+            coefficients = np.linalg.pinv(basis(train))
+            residual = np.eye(len(train)) - basis(train) @ coefficients
+            rbf = Model("rbf:" + self.name.split(":", 1)[1]).weights(train, query)
+            return basis(query) @ coefficients + rbf @ residual
         if self.family != "rbf":
             raise LtmError(f"unknown far-light model {self.name!r}")
         width, smoothing = (float(v) for v in self.name.split(":")[1:])
@@ -82,10 +95,15 @@ def rbf_models() -> list[Model]:
     return [Model(f"rbf:{w:g}:{s:g}") for w in RBF_WIDTHS for s in RBF_SMOOTHING]
 
 
+def hsh_rbf_models() -> list[Model]:
+    """HSH order 3 plus an RBF residual at every width and smoothing of :func:`rbf_models`."""
+    return [Model(HSH_RBF + m.name.removeprefix("rbf")) for m in rbf_models()]
+
+
 @lru_cache(maxsize=1)
 def candidates() -> tuple[Model, ...]:
     """Every model ``auto`` chooses among, smallest first."""
-    return (Model("ptm"), Model("hsh2"), Model("hsh3"), *rbf_models())
+    return (Model("ptm"), Model("hsh2"), Model("hsh3"), *rbf_models(), *hsh_rbf_models())
 
 
 def loo_operator(hat: np.ndarray) -> np.ndarray | None:

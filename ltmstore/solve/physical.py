@@ -32,7 +32,8 @@ straitjacket:
   data the model speaks alone and at the data the result interpolates it.
 
 Where it fails: without ``geometry.pixels`` (an acquisition that does not declare the object's
-extent) the near light's direction is unknown: the method refuses. Anisotropic or layered
+extent, and a capture that cannot place it, :mod:`ltmstore.stages.placement`) the near light's
+direction is unknown: the method refuses. Anisotropic or layered
 materials, and strongly non-planar objects (the light is computed for ``z = 0``), leave more in
 the residual; ``--method auto`` then prefers another method by held-out error.
 """

@@ -58,7 +58,9 @@ class Lights:
 
     The rejection masks are exclusive: a frame counts under the first reason that applies.
     ``occluded`` (judged from the frames' brightness after the positions: see
-    :mod:`ltmstore.stages.occlusion`) is None where occlusion was not judged.
+    :mod:`ltmstore.stages.occlusion`) is None where occlusion was not judged; ``led_off``
+    (the LED-off lead of a phone capture: :mod:`ltmstore.capture.lead`) is None where no lead
+    was looked for.
     """
 
     r: np.ndarray
@@ -69,6 +71,7 @@ class Lights:
     outside_bounds: np.ndarray
     view: dict[str, np.ndarray] = field(default_factory=dict)
     occluded: np.ndarray | None = None
+    led_off: np.ndarray | None = None
 
     @classmethod
     def classify(cls, r: np.ndarray, s: np.ndarray, z: np.ndarray, *, plane: Plane,
@@ -106,6 +109,8 @@ class Lights:
     @property
     def valid(self) -> np.ndarray:
         placed = ~(self.beyond_poses | self.out_of_plane | self.outside_bounds)
+        if self.led_off is not None:
+            placed &= ~self.led_off
         return placed if self.occluded is None else placed & ~self.occluded
 
     def rejected(self) -> dict[str, int]:
@@ -113,6 +118,9 @@ class Lights:
         counts = {"beyond_poses": int(self.beyond_poses.sum()),
                   "out_of_plane": int(self.out_of_plane.sum()),
                   "outside_bounds": int(self.outside_bounds.sum())}
+        placed = ~(self.beyond_poses | self.out_of_plane | self.outside_bounds)
+        if self.led_off is not None:
+            counts["led_off"] = int((self.led_off & placed).sum())
         if self.occluded is not None:
             counts["occluded"] = int(self.occluded.sum())
         return counts

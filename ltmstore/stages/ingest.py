@@ -18,6 +18,11 @@ plane height; default :data:`Z_TOLERANCE_FRACTION` of the height, about a 10 % c
 irradiance by the inverse-square law) and ``outside_bounds`` (the light is outside the plane
 rectangle, or the camera outside the view plane).
 
+Camera B as a phone films it (:mod:`ltmstore.stages.phone`): with ``camera_calibration`` in
+``acquisition.json`` every frame is undistorted; a leading LED-off segment gives the room
+light's image, subtracted from every frame (its frames are rejected as ``led_off``); a drift of
+the camera's gain or white balance is estimated from the frames and divided out, or refused.
+
 6D acquisitions (``view_plane`` in ``acquisition.json``, ``p, q`` columns in ``poses.csv``)
 whose ``view_plane`` declares camera B (``distance``, ``intrinsics``, ``grid``): every frame is
 registered onto the declared object-plane grid by the plane-induced homography of
@@ -43,6 +48,7 @@ from ltmstore.capture.video import VideoReader
 from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import begin_stage, new_store
+from ltmstore.core.transfer import transfer_lut
 from ltmstore.stages.frames import (
     DEFAULT_CHUNK_FRAMES,
     STAGE,
@@ -52,6 +58,8 @@ from ltmstore.stages.frames import (
     lights_at,
 )
 from ltmstore.stages.occlusion import occluded_frames
+from ltmstore.stages.phone import Corrections, plan_corrections, scan_video
+from ltmstore.stages.undistort import Undistorter
 
 Z_TOLERANCE_FRACTION = 0.05
 
@@ -88,15 +96,20 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     -------
     dict
         ``n_frames``, ``n_valid``, ``rejected`` (per reason), ``fps``, ``frame_size``,
-        ``z_tolerance``, ``timings`` (``setup``: reading and hashing the inputs; ``frames``:
-        decoding and writing) and ``seconds`` (total) (also stored as stage ``ingest``), and
-        ``store``.
+        ``z_tolerance``, ``timings`` (``setup``: reading and hashing the inputs; ``scan``: the
+        first pass over the video; ``frames``: decoding and writing) and ``seconds`` (total);
+        for a fixed camera B ``undistort``, ``ambient`` and ``drift`` (what
+        :mod:`ltmstore.stages.phone` found and corrected; ``rejected`` then counts ``led_off``
+        frames when the video starts with an LED-off lead) (also stored as stage ``ingest``),
+        and ``store``.
 
     Raises
     ------
     LtmError
-        For a bad acquisition folder, an undecodable video, an existing store without
-        ``overwrite`` or fewer than :data:`MIN_VALID_FRAMES` valid frames.
+        For a bad acquisition folder, an undecodable video, a ``camera_calibration`` of
+        another frame size, an existing store without ``overwrite``, fewer than
+        :data:`MIN_VALID_FRAMES` valid frames, or camera B's exposure or white balance drifting
+        more than can be corrected (nothing is written then).
     """
     started = time.perf_counter()
     acq = load_acquisition(acq_dir)
@@ -115,6 +128,8 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
                     time_offset=acq.time_offset, view_plane=acq.view_plane)
     hashes = hashes or _sha256(acq)
     hashed = time.perf_counter()
+    corrections = _corrections(acq, rig, light, allow_dropped=allow_dropped)
+    scanned = time.perf_counter()
     with VideoReader(acq.video, allow_dropped=allow_dropped) as video, new_store(
             store, overwrite=overwrite, inputs=(acq.folder, acq.video, acq.poses)) as group:
         begin_stage(group, STAGE)
@@ -122,29 +137,57 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         bar = tqdm(video.frames(), total=video.frame_count, disable=not progress, unit="frame",
                    desc="ingest")
         index = []
+        lut = transfer_lut(acq.transfer, bits=8)
         for i, rgb in bar:
             at = light(np.array([i / video.fps]))
             view = None
             if rig is not None:
                 _check_frame_size(rgb, rig, acq.video)
                 view = (float(at.view["p"][0]), float(at.view["q"][0]))
-            sink.add(rgb, bool(at.valid[0]), source=f"video {str(acq.video)!r} frame {i}",
-                     view=view)
+            ycc = None if corrections is None else corrections.linear(i, rgb, lut, acq.video)
+            valid = bool(at.valid[0]) and (corrections is None or corrections.lead_end is None
+                                           or i >= corrections.lead_end)
+            sink.add(rgb, valid, source=f"video {str(acq.video)!r} frame {i}", view=view,
+                     ycc=ycc)
             index.append(i)
         t = np.array(index, dtype=np.float64) / video.fps
         timings = {"setup": round(hashed - started, 3),
-                   "frames": round(time.perf_counter() - hashed, 3)}
+                   "scan": round(scanned - hashed, 3),
+                   "frames": round(time.perf_counter() - scanned, 3)}
         info = {"fps": video.fps, "frame_size": list(sink.shape), "z_tolerance": z_tolerance,
                 "time_offset": acq.time_offset, "chunk_frames": chunk_frames, "timings": timings,
                 "dropped_frames": dict(video.dropped)}
+        if corrections is not None:
+            info.update(corrections.record)
         if rig is not None:
             info["registration"] = {
                 "camera_frame_size": [rig.intrinsics.height, rig.intrinsics.width],
                 "observed_fraction_mean": sink.observed[0] / max(sink.observed[1], 1)}
         provenance = _provenance(acq, hashes, video, sink, rig)
-        record = finish_ingest(group, sink, t, _judge_occlusion(light(t), sink, rig),
+        lights = light(t)
+        if corrections is not None and corrections.lead_end is not None:
+            lights = replace(lights, led_off=np.array(index) < corrections.lead_end)
+        record = finish_ingest(group, sink, t, _judge_occlusion(lights, sink, rig),
                                acquisition=provenance, info=info, started=started)
     return {**record, "store": str(store)}
+
+
+def _corrections(acq: Acquisition, rig: ViewRig | None, light: partial, *,
+                 allow_dropped: bool) -> Corrections | None:
+    """Camera B's corrections (:mod:`ltmstore.stages.phone`): a fixed camera's video is scanned
+    once for the LED-off lead and gain drift; a moving camera's is only undistorted."""
+    undistort = (None if acq.camera_calibration is None
+                 else Undistorter.from_file(acq.camera_calibration))
+    if rig is not None or acq.view_plane is not None:
+        if undistort is None:
+            return None
+        return Corrections(undistort, None, None, None, {"undistort": undistort.to_json()})
+    lut = transfer_lut(acq.transfer, bits=8)
+    scan = scan_video(acq.video, lut, allow_dropped=allow_dropped)
+    if undistort is not None and scan.head:
+        undistort.check_size(scan.head[0], acq.video)
+    return plan_corrections(scan, light(scan.index / scan.fps), acq.plane, undistort=undistort,
+                            lut=lut)
 
 
 def _judge_occlusion(lights: Lights, sink: FrameSink, rig: ViewRig | None) -> Lights:

@@ -252,11 +252,6 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                            "--lattice RxS (cells over the disk of directions)")
     elif method != AUTO:
         get_method(method)
-        if method == "physical" and "object" not in group.attrs.get("acquisition", {}):
-            raise LtmError(f"store {str(path)!r}: --method physical needs each pixel's place "
-                           "under the near light; declare the object's extent in "
-                           "acquisition.json ('object': {'x': [left, right], 'y': [bottom, "
-                           "top]}) and ingest again")
     elif params:
         raise LtmError(f"params {params!r} need a named method; auto chooses the method and its "
                        "parameters per tile")
@@ -433,9 +428,12 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height), plan=plan,
                       sampling=sampling, key=key, method=method, params=params, auto=auto,
                       color=color, progress=progress, light_major=light_major)
+    place = partial(_place, group, plan, binning, r, s, plane, method)
     if resume and _resumable(group, key, plan, [*sample_names, *ltm_names, EXPECTED_ERROR,
                                                 UNSUPPORTED], ltm_names):
-        return _solve_stage(group, client, **solve_args, timings={"resample_s": 0.0}, resumed=True)
+        timings = {"resample_s": 0.0}
+        return _solve_stage(group, client, **solve_args, **place(timings), timings=timings,
+                            resumed=True)
 
     st.begin_stage(group, "resample")
     st.begin_stage(group, "reconstruct", {"run": key})
@@ -449,6 +447,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     st.complete_stage(group, "resample", {
         **sampling, "frames_used": int((binning.cell >= 0).sum())})
     timings["resample_s"] = time.perf_counter() - start
+    placed = place(timings)
 
     for name in ltm_names:
         st.create_variable(group, name, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
@@ -459,23 +458,39 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
     st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image, chunks=plan.tile, dtype=bool,
                        fill_value=True)
-    if method in (AUTO, "physical") and "object" in group.attrs["acquisition"] \
-            and len(lat.shape) == 2:  # 6-D lattices keep cs
+    if placed["extent"] is not None:
         _create_surface_maps(group, plan)
-    return _solve_stage(group, client, **solve_args, timings=timings, resumed=False)
+    return _solve_stage(group, client, **solve_args, **placed, timings=timings, resumed=False)
+
+
+def _place(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray, s: np.ndarray,
+           plane: Plane, method: str, timings: dict) -> dict:
+    """The object extent of the surface model (declared or estimated,
+    :func:`ltmstore.stages.placement.place_object`) and its record; none where the method or a
+    6-D lattice does not use it."""
+    if method not in (AUTO, "physical") or len(binning.lattice.shape) != 2:
+        return {"extent": None, "placement": None}
+    from ltmstore.stages.placement import place_object
+
+    start = time.perf_counter()
+    extent, record = place_object(group, plan, binning, r, s, plane.height, method=method)
+    timings["placement_s"] = time.perf_counter() - start
+    return {"extent": extent, "placement": record}
 
 
 def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan: TilePlan,
                  sampling: dict, key: dict, method: str, params: dict, auto: bool, color: bool,
-                 progress: bool, timings: dict, resumed: bool, light_major: bool) -> dict:
-    """Solve every tile not yet marked done (all of them in a fresh run); complete the stage."""
+                 progress: bool, timings: dict, resumed: bool, light_major: bool,
+                 extent: dict | None, placement: dict | None) -> dict:
+    """Solve every tile not yet marked done (all of them in a fresh run); complete the stage.
+    ``extent`` places the pixels on the object plane for the surface model (None: without it);
+    ``placement`` records where it came from."""
     start = time.perf_counter()
     out = {LTM: group[LTM], EXPECTED_ERROR: group[EXPECTED_ERROR],
            UNSUPPORTED: group[UNSUPPORTED], TILES: group[tiles_name(LTM)],
            **{name: group[name] for name in sf.SURFACE if name in group}}
     solve = partial(_solve_tiles, plan=plan, geometry=geometry, params=params, client=client,
                     progress=progress)
-    extent = group.attrs["acquisition"].get("object")
     records, solved = solve(group[SAMPLES], out, method=method, auto=auto, extent=extent)
     record_method_map(group, records, plan, method)
     # The colour LTM: the same method, default parameters. Signed chroma is no reflectance:
@@ -493,7 +508,8 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "heldout_error": _mean_heldout(records), "tiles_total": plan.n_tiles * passes,
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings,
-            "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image))}
+            "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image)),
+            **({"placement": placement} if placement is not None else {})}
     names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]
     for name in names:
         check_solved(group, name, plan, client)

@@ -3,9 +3,16 @@
 Every model of :mod:`ltmstore.solve.lightfit` is linear in the observations, with weights that
 depend only on the light directions, so one weight matrix per model serves every pixel. Per pixel
 tile, the model with the lowest leave-one-light-out error on the tile's own photographs is chosen
-(``method="auto"``: PTM, HSH of order 2 and 3, Gaussian RBF at several widths and smoothings; the
-smaller model wins a tie), and recorded in ``method_map (tile_y, tile_x)``. No truth and no
-held-out photograph is used.
+(``method="auto"``: PTM, HSH of order 2 and 3, Gaussian RBF at several widths and smoothings, HSH
+order 3 plus an RBF of its residual; the smaller model wins a tie), and recorded in
+``method_map (tile_y, tile_x)``. No truth and no held-out photograph is used. With ``auto``,
+held-out lights of the capture itself (every 4th in turn, on a sample of pixels) then score every
+classic model and the surface model (:func:`_surface`): the image's classic model is the one
+they prefer where it beats the leave-one-out choice by
+:data:`~ltmstore.stages.surface.CLASSIC_MARGIN` (leave-one-out on a dome's rings favours the
+models that interpolate along them), and the surface is fitted only where it lowers that
+model's held-out error by :data:`~ltmstore.stages.surface.MARGIN`; where it is skipped, the
+stage record's ``timings.surface_skipped_s`` says how long its fit would have taken.
 
 Like the RTI world's fitters, the models are fitted to the sRGB-encoded values of the
 photographs (the measure is on 8-bit sRGB images; on the coin this is 3-4 dB better than a fit in
@@ -150,8 +157,12 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
         timings["fit_s"] = time.perf_counter() - solve_start  # the models are chosen
         names = [m.name for m in models]
         if method in ("auto", "physical"):
-            surface = _surface(group, valid, train, models[pick(mse.mean(axis=0), models,
-                                                                len(train))], method, timings)
+            loo_choice = models[pick(mse.mean(axis=0), models, len(train))]
+            classic, surface = _surface(group, valid, train, loo_choice, models, method,
+                                        timings)
+            if classic != loo_choice:  # held-out lights prefer another classic model
+                chosen = choose_tiles(mse, models, len(train),
+                                      common=models.index(classic)).reshape(plan.grid)
             if surface is not None:
                 theta, blend, gain[:] = surface
                 at_cells = sf.BlendAt.of(blend, train, cells)  # once for every tile
@@ -171,34 +182,51 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
             "methods_per_tile": counts, "plan": asdict(plan),
             "tiles_total": plan.n_tiles, "tiles_solved": plan.n_tiles, "tiles_resumed": 0,
             "resumed": False, "timings": timings, "exposure_fitted": bool((gain != 1).any()),
+            "surface_skipped": "surface_skipped_s" in timings,
             "seconds_per_pixel": timings["solve_s"] / int(np.prod(plan.image))}
     st.complete_stage(group, "reconstruct", info)
     return info
 
 
 def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: Model,
-             method: str, timings: dict) -> tuple[np.ndarray, sf.Blend, np.ndarray] | None:
-    """Fit the surface model (:mod:`ltmstore.stages.surface`) to the whole image and write its
-    maps, where ``method`` is ``physical`` or where (``auto``) it predicts held-out lights of a
-    sample of the pixels better than ``classic``, the image's choice, by
-    :data:`~ltmstore.stages.surface.MARGIN`. Returns its parameters ``(y, x, 3, 6)``, its
-    :class:`~ltmstore.stages.surface.Blend` and the valid frames' exposures (ones unless
-    chosen), or None (the classic models stay)."""
+             models: tuple[Model, ...], method: str, timings: dict
+             ) -> tuple[Model, tuple[np.ndarray, sf.Blend, np.ndarray] | None]:
+    """The image's classic model and the surface model (:mod:`ltmstore.stages.surface`).
+
+    With ``method="physical"`` the surface is fitted to the whole image and mixed with nothing.
+    With ``auto``, held-out lights of a sample of the pixels score ``classic`` (the image's
+    leave-one-out choice, the surface's partner in a blend), every other model of ``models``
+    and the surface variants (:func:`~ltmstore.stages.surface.cross_validated`): the best
+    classic model is the image's, and the surface is fitted only where it lowers that model's
+    held-out error by :data:`~ltmstore.stages.surface.MARGIN`; where it does not, the fit of
+    every pixel is skipped and the time it would have taken (estimated from the choice's own
+    fits) is recorded as ``surface_skipped_s``.
+
+    Returns the classic model and, where the surface is fitted, its parameters ``(y, x, 3,
+    6)``, its :class:`~ltmstore.stages.surface.Blend` and the valid frames' exposures (ones
+    unless chosen); its maps are written to the store.
+    """
     start = time.perf_counter()
     rgb = sf.frames_rgb(group, valid)
     flat = rgb.reshape(len(rgb), -1, 3)
     sample = np.sort(np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS])
     exposure, weight = False, 1.0
     if method == "auto":
-        scores = sf.cross_validated(flat[:, sample], train, classic)
+        scores = sf.cross_validated(flat[:, sample], train, classic, classics=models)
         timings["surface_choice_s"] = time.perf_counter() - start
+        best = sf.best_classic(scores, classic, models, len(train))
+        key = None if best == classic else best.name
         timings["surface_heldout_mse"] = {
-            classic.name if key is None else f"exposure={key[0]},weight={key[1]:g}": value
-            for key, value in scores.items()}
-        best = sf.choose_surface(scores)
-        if best is None:
-            return None
-        exposure, weight = best
+            classic.name: scores[None], best.name: scores[key],
+            **{f"exposure={k[0]},weight={k[1]:g}": v for k, v in scores.items()
+               if isinstance(k, tuple)}}
+        surface = sf.choose_surface(scores, key)
+        if surface is None:
+            # the choice fitted 2 FOLDS surfaces to the sample (3/4 of the lights each)
+            per_pixel = timings["surface_choice_s"] / (2 * sf.FOLDS * len(sample))
+            timings["surface_skipped_s"] = per_pixel * flat.shape[1]
+            return best, None
+        exposure, weight = surface
     gain = np.ones(len(train), dtype=np.float32)
     if exposure:
         gain[:] = sf.exposures(flat[:, sample], train)
@@ -209,7 +237,7 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     encoded = linear_to_srgb((flat[:, sample] @ LUMA).astype(np.float32))
     smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train)
     timings["surface_s"] = time.perf_counter() - start
-    return theta, sf.Blend(smoother, classic, weight), gain
+    return classic, (theta, sf.Blend(smoother, classic, weight), gain)
 
 
 def _write_exposure(group: zarr.Group, valid: np.ndarray, gain: np.ndarray) -> None:
@@ -235,10 +263,12 @@ def _loo_mse(values: np.ndarray, loo: np.ndarray, usable: np.ndarray) -> np.ndar
     return np.where(usable, mse, np.inf)
 
 
-def choose_tiles(mse: np.ndarray, models: tuple[Model, ...], n_lights: int) -> np.ndarray:
+def choose_tiles(mse: np.ndarray, models: tuple[Model, ...], n_lights: int, *,
+                 common: int | None = None) -> np.ndarray:
     """The model of each tile from its leave-one-out MSE ``(tiles, models)``.
 
-    The whole image's choice (the mean MSE over tiles; the smaller model wins a tie) holds for
+    The whole image's choice (``common``, an index of ``models``; by default the lowest mean
+    MSE over tiles, the smaller model winning a tie) holds for
     every tile unless the tile's own best lowers the tile's MSE by more than
     :data:`LEAVE_GLOBAL` times the image's mean MSE: a tile's leave-one-out estimate is noisy,
     and lights left out of a dome are not the lights between its rings. Following each tile's
@@ -246,7 +276,8 @@ def choose_tiles(mse: np.ndarray, models: tuple[Model, ...], n_lights: int) -> n
     multi-obj1-material1, coin); this rule lets a tile go its own way only where it matters to
     the image, such as a specular object on a matte ground.
     """
-    common = pick(mse.mean(axis=0), models, n_lights)
+    if common is None:
+        common = pick(mse.mean(axis=0), models, n_lights)
     own = np.array([pick(row, models, n_lights) for row in mse])
     gain = mse[:, common] - mse[np.arange(len(mse)), own]
     return np.where(gain > LEAVE_GLOBAL * mse[:, common].mean(), own, common).astype(np.int16)

@@ -14,53 +14,16 @@ scattered onto the full lattice at the end.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ltmstore.core.binning import Binning, bin_positions  # the counting: shared with capture
 from ltmstore.core.dims import Lattice, P, Plane, Q, R, S, cells_of_delta
 from ltmstore.core.errors import LtmError
 
 if TYPE_CHECKING:
     import dask.array as da
-
-
-@dataclass(frozen=True)
-class Binning:
-    """Cell of every frame and what it implies (K, M, counts)."""
-
-    lattice: Lattice
-    cell: np.ndarray  # (t,) flat cell index, -1 for frames not used
-    count: np.ndarray  # lattice-shaped number of frames per cell
-
-    @property
-    def observed(self) -> np.ndarray:
-        return self.count > 0
-
-    @property
-    def k(self) -> int:
-        return int(self.observed.sum())
-
-    @property
-    def m(self) -> int:
-        return self.lattice.size
-
-    @property
-    def ratio(self) -> float:
-        """``K / M``, the sampling ratio."""
-        return self.k / self.m
-
-
-def bin_positions(lattice: Lattice, positions: tuple[np.ndarray, ...],
-                  valid: np.ndarray | None = None) -> Binning:
-    """Assign each frame's light (and view) position to a lattice cell."""
-    cell = lattice.cell_index(*positions)
-    if valid is not None:
-        cell = np.where(np.asarray(valid, bool), cell, -1)
-    used = cell[cell >= 0]
-    count = np.bincount(used, minlength=lattice.size).reshape(lattice.shape)
-    return Binning(lattice=lattice, cell=cell, count=count)
 
 
 def _runs(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,23 +1,38 @@
-"""Simulated raw two-phone capture: ``ltm simulate --raw``.
+"""Simulated raw two-phone capture: ``ltm simulate --raw``, phones as they are.
 
-Phone A is waved over the painting; its LED is the light and its camera films a ChArUco board
-laid in the object plane around the painting. Phone B films the painting from a fixed position.
-Nothing but the two videos is written for the pipeline (no poses file, no clock offset):
-``ltm track``, ``ltm sync`` and ``ltm ingest`` have to recover them. Layout::
+Phone A is waved over the painting; its LED is the light and its camera films, by default, the
+painting itself hung on a plain wall, lit by that LED (``--board``: a ChArUco board laid in the
+object plane around the painting, as phone A's tracking target). Phone B films the painting from
+a fixed position. Each phone effect of :mod:`ltmstore.synthetic.phone_effects` (lens distortion,
+rolling shutter, motion blur, camera B's auto exposure and white balance, ambient light with a
+1 s LED-off lead, the LED's angular fall-off, H.264) is on unless switched off (``--effects``).
+Nothing but the videos is written for the pipeline (no poses file, no clock offset, no
+intrinsics): ``ltm calibrate``, ``ltm track``, ``ltm sync`` and ``ltm ingest`` have to recover
+them. Layout::
 
-    OUT/acquisition.json   video B, plane, transfer; poses "poses.csv" (written by `ltm track`)
-    OUT/video.mkv          phone B: the painting lit by the LED (as `ltm simulate`)
-    OUT/phone_a.mkv        phone A: the board seen from the phone's pose, blur and noise
-    OUT/calibration.mkv    phone A: still views of the board from varied angles
-    OUT/board.json/.png    the board spec and image
-    OUT/truth/             intrinsics.json, poses_true.csv (true LED on video B's clock),
-                           raw.json (true clock offset, LED offset); and OUT/truth.zarr
+    OUT/acquisition.json   video B, plane, transfer, phone A's files; poses "poses.csv"
+                           (written by `ltm track`); with distortion "camera_calibration":
+                           "intrinsics_b.json" (written by `ltm calibrate calibration_b.mkv`)
+    OUT/video.mp4|mkv      camera B: the painting lit by the LED (H.264 .mp4 with h264 on)
+    OUT/phone_a.mp4|mkv    phone A: the painting (or the board) seen from the phone's pose
+    OUT/calibration.mkv    phone A: still views of board.json from varied angles
+    OUT/calibration_b.mkv  camera B: still views of board_b.json (with distortion on)
+    OUT/board.json/.png    phone A's board: the A0 tracking board (--board) or an A4 page
+    OUT/board_b.json/.png  a coarse A4 board for camera B's calibration
+    OUT/truth/             intrinsics.json (phone A, with its distortion), intrinsics_b.json,
+                           poses_true.csv (true LED at phone A's frames, on video B's clock),
+                           camera_b.csv (per frame of video B: LED on, AE gain, white-balance
+                           gains, phone A's optical axis), raw.json (true clock offset, LED
+                           offset, painting width, every effect and its strength);
+                           and OUT/truth.zarr: the LED held level, no ambient, drift or distortion
 
-Geometry: plane coordinates ``(r, s, z)`` centred on the board (:meth:`BoardSpec.to_plane`);
-phone A's camera looks down, its image ``x`` axis along ``r`` turned by a slowly wandering yaw,
-with small smooth tilts; the LED sits at ``led_offset`` (camera axes: x right, y down, z along
-the optical axis) from the camera centre. Phone A's clock starts ``time_offset`` seconds after
-phone B's (``t_B = t_A + time_offset``, the ``acquisition.json`` convention).
+Geometry: plane coordinates ``(r, s, z)`` centred on the painting (and the board:
+:meth:`BoardSpec.to_plane`); phone A's camera looks down, its image ``x`` axis along ``r``
+turned by a slowly wandering yaw, with small smooth tilts; the LED sits at ``led_offset``
+(camera axes: x right, y down, z along the optical axis) from the camera centre and shines along
+the optical axis. Phone A's clock starts ``time_offset`` seconds after phone B's (``t_B = t_A +
+time_offset``, the ``acquisition.json`` convention). Before the hand's scribble starts (the LED-off
+lead) the phone holds still at the scribble's start.
 """
 
 from __future__ import annotations
@@ -39,14 +54,30 @@ from ltmstore.capture.calibrate import Intrinsics
 from ltmstore.core.dims import LUMA
 from ltmstore.core.errors import LtmError
 from ltmstore.synthetic import writer
-from ltmstore.synthetic.render import render_ltm
+from ltmstore.synthetic.camera_b import CameraBTimeline, camera_b_frames
+from ltmstore.synthetic.phone_effects import (
+    AMBIENT,
+    BLUR_SAMPLES,
+    DISTORTION_A,
+    DISTORTION_B,
+    LED_EXPONENT,
+    READOUT_S,
+    SHUTTER_OFF_S,
+    SHUTTER_OFF_SAMPLES,
+    SHUTTER_S,
+    PhoneEffects,
+    camera_b_matrix,
+    h264_bitrate,
+    parse_effects,
+)
+from ltmstore.synthetic.phone_view import LedLighting, PhoneView, PlaneTexture, wall_with_painting
+from ltmstore.synthetic.render import GGX, Shading, render_ltm
 from ltmstore.synthetic.simulate import (
     DEFAULT_PATH_DENSITY,
     EXPOSURE_PEAK,
     PLANE,
     SimulationPlan,
     plan_simulation,
-    video_frames,
     write_truth,
 )
 
@@ -56,8 +87,6 @@ LED_OFFSET = (0.012, 0.0, 0.0)  # metres, camera axes
 BOARD_PAPER = "A0"  # 1189 x 841 mm: the camera sees the board everywhere over the 40 cm plane
 BOARD_SQUARE_MM = 30.0
 TEXTURE_PX_PER_M = 5000.0  # board texture resolution (0.2 mm per pixel)
-EXPOSURE_S = 1 / 250  # phone A shutter time: motion blur
-MOTION_SAMPLES = 3
 OPTICS_BLUR_PX = 0.8  # Gaussian sigma of the lens blur, pixels at 1280 wide
 NOISE_DN = 2.0  # read noise, 8-bit code values
 SHOT_DN = 0.02  # shot noise variance per code value
@@ -65,8 +94,14 @@ YAW_WANDER_DEG = 20.0
 TILT_DEG = 2.0  # standard deviation of the phone's tilt
 CALIBRATION_VIEWS = 30
 OFFSET_RANGE = (0.2, 0.5)  # seconds, magnitude of the clock offset (random sign)
-OUTPUTS = ("acquisition.json", "video.mkv", "phone_a.mkv", "calibration.mkv", "board.json",
-           "board.png", "truth", "truth.zarr", "poses.csv")
+BOARD_B_SQUARES = (6, 4)  # camera B's calibration board: 46 mm squares on an A4 page
+CAMERA_B_CALIBRATION_M = (0.6, 0.8)  # camera B's distance from it (the board fills the frame)
+WALL_PX_PER_M = 3000.0  # boardless texture: 0.33 mm per texel (phone A sees 0.3 mm per pixel)
+WALL_EXTENT_M = 0.5  # the wall texture spans +-0.5 m: all that phone A sees over the plane
+OUTPUTS = ("acquisition.json", "video.mkv", "video.mp4", "phone_a.mkv", "phone_a.mp4",
+           "calibration.mkv", "calibration_b.mkv", "board.json", "board.png", "board_b.json",
+           "board_b.png", "truth", "truth.zarr", "poses.csv", "poses.frames.csv",
+           "intrinsics.json", "intrinsics_b.json")
 
 
 @dataclass(frozen=True, eq=False)
@@ -166,17 +201,15 @@ def led_to_camera(led: np.ndarray, r_wc: np.ndarray, led_offset) -> np.ndarray:
     return led - np.einsum("nij,j->ni", r_wc, np.asarray(led_offset, np.float64))
 
 
-def phone_a_frames(plan: SimulationPlan, view: BoardView, times: np.ndarray,
-                   seed: int) -> Iterator[np.ndarray]:
-    """Yield phone A's frames (uint8 grey) at hand-clock ``times``; motion blurred."""
-    rng = np.random.default_rng([seed, 606])
-    offsets = EXPOSURE_S * (np.arange(MOTION_SAMPLES) / max(MOTION_SAMPLES - 1, 1) - 0.5)
-    for t in times:
-        sub = t + offsets
-        led = np.column_stack(plan.trajectory.at(sub)[:3])
-        r_wc = phone_orientation_at(sub, seed)
-        centres = led_to_camera(led, r_wc, view.camera.led_offset)
-        yield view.render(list(zip(centres, r_wc, strict=True)), rng)
+def phone_poses(plan: SimulationPlan, camera: PhoneCamera):
+    """``poses(times) -> (camera centres, camera axes, LED positions)`` on the hand's clock
+    (before the trajectory starts the hand holds still at its start)."""
+    def poses(times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        led = np.column_stack(plan.trajectory.at(times)[:3])
+        r_wc = phone_orientation_at(times, plan.seed)
+        return led_to_camera(led, r_wc, camera.led_offset), r_wc, led
+
+    return poses
 
 
 @lru_cache(maxsize=2)
@@ -193,13 +226,18 @@ def phone_orientation_at(t: np.ndarray, seed: int) -> np.ndarray:
     return u @ vt
 
 
-def calibration_frames(view: BoardView, seed: int,
-                       n: int = CALIBRATION_VIEWS) -> Iterator[np.ndarray]:
-    """Still views of the board from varied positions and angles (tilts up to ~35 degrees)."""
+
+def calibration_frames(view: PhoneView, seed: int, n: int = CALIBRATION_VIEWS, *,
+                       height: tuple[float, float] = (0.28, 0.45), spread: float = 0.15,
+                       aim: float | None = None) -> Iterator[np.ndarray]:
+    """Still views of a board from varied positions and angles (tilts up to ~35 degrees):
+    camera centres ``height`` above the board, within ``spread`` of its centre, looking at a
+    point within ``aim`` of it (default ``2 / 3`` of ``spread``)."""
     rng = np.random.default_rng([seed, 707])
+    aim_scale = 2 / 3 if aim is None else aim / spread
     for _ in range(n):
-        centre = np.array([*rng.uniform(-0.15, 0.15, 2), rng.uniform(0.28, 0.45)])
-        target = np.array([*rng.uniform(-0.1, 0.1, 2), 0.0])
+        centre = np.array([*rng.uniform(-spread, spread, 2), rng.uniform(*height)])
+        target = np.array([*rng.uniform(-spread, spread, 2) * aim_scale, 0.0])
         z = target - centre
         z /= np.linalg.norm(z)
         roll = rng.uniform(-0.5, 0.5)
@@ -207,14 +245,31 @@ def calibration_frames(view: BoardView, seed: int,
         y = hint - z * (hint @ z)
         y /= np.linalg.norm(y)
         r_wc = np.column_stack([np.cross(y, z), y, z])
-        yield view.render([(centre, r_wc)], rng)
+        yield view.still(centre, r_wc, rng)
+
+
+def board_texture(spec: BoardSpec, albedo: np.ndarray | None = None,
+                  object_width: float = 0.2) -> PlaneTexture:
+    """The board (the painting pasted at its centre when ``albedo`` is given), centred on the
+    plane origin, evenly lit."""
+    tex = board_image(spec, TEXTURE_PX_PER_M).astype(np.float32) / 255
+    if albedo is not None:
+        side = round(object_width * TEXTURE_PX_PER_M)
+        patch = cv2.resize(np.asarray(albedo, np.float32), (side, side),
+                           interpolation=cv2.INTER_LINEAR)
+        y0, x0 = (tex.shape[0] - side) // 2, (tex.shape[1] - side) // 2
+        tex[y0:y0 + side, x0:x0 + side] = np.clip(patch, 0, 1)
+    w, h = spec.size
+    return PlaneTexture(cv2.GaussianBlur(tex, (0, 0), 0.7), None, -w / 2, h / 2,
+                        TEXTURE_PX_PER_M, 0.45)
 
 
 def simulate_raw(out: str | os.PathLike, *, scene: str = "canvas",
                  path_density: float = DEFAULT_PATH_DENSITY, seed: int = 0, size: int = 128,
                  lattice: tuple[int, int] = (32, 32), camera: PhoneCamera | None = None,
                  time_offset: float | None = None, calibration_views: int = CALIBRATION_VIEWS,
-                 truth: bool = True, overwrite: bool = False, progress: bool = True) -> dict:
+                 truth: bool = True, overwrite: bool = False, progress: bool = True,
+                 board: bool = False, effects: str | PhoneEffects | None = "all") -> dict:
     """Simulate a raw two-phone capture (see the module docstring).
 
     Parameters
@@ -228,78 +283,227 @@ def simulate_raw(out: str | os.PathLike, *, scene: str = "canvas",
     time_offset : float, optional
         True clock offset ``t_B - t_A`` in seconds (default: random, 0.2-0.5 s either sign).
     calibration_views : int
-        Frames of ``calibration.mkv`` (0: none).
+        Frames of each calibration video (0: none).
     truth : bool
         Write ``truth.zarr``.
     overwrite : bool
         Replace an earlier simulation in ``out``.
     progress : bool
         Show progress bars.
+    board : bool
+        Phone A films the A0 ChArUco board around the painting (default: the painting alone,
+        on a plain wall, lit by the phone's LED).
+    effects : str or PhoneEffects
+        ``"all"`` (default), ``"none"`` or a comma list of
+        :data:`~ltmstore.synthetic.phone_effects.EFFECTS`.
 
     Returns
     -------
     dict
-        ``frames``, ``time_offset``, ``led_offset``, ``camera``, ``paths`` and the video B
-        simulation info.
+        ``frames``, ``time_offset``, ``led_offset``, ``camera``, ``effects``, ``paths`` and the
+        video B simulation info.
     """
     camera = camera or PhoneCamera()
+    fx = parse_effects(effects)
     plan = plan_simulation(scene=scene, path_density=path_density, seed=seed, size=size,
                            lattice=lattice, plane=PLANE)
     if time_offset is None:
         rng = np.random.default_rng([seed, 808])
         time_offset = float(rng.choice([-1, 1]) * rng.uniform(*OFFSET_RANGE))
     folder = writer.prepare_folder(Path(out), OUTPUTS, overwrite=overwrite)
-    spec = board_spec(BOARD_PAPER, square_mm=BOARD_SQUARE_MM)
+    setup = RawSetup(plan, camera, fx, board, float(time_offset), calibration_views, progress)
     try:
-        return _execute(plan, folder, spec, camera, float(time_offset), calibration_views,
-                        truth, progress)
+        return _execute(setup, folder, truth)
     except OSError as exc:
         raise LtmError(f"cannot write simulation into {str(folder)!r}: {exc.strerror or exc}") \
             from exc
 
 
-def _execute(plan: SimulationPlan, folder: Path, spec: BoardSpec, camera: PhoneCamera,
-             offset: float, calibration_views: int, truth: bool, progress: bool) -> dict:
+@dataclass(frozen=True, eq=False)
+class RawSetup:
+    """What one raw simulation is made of (see :func:`simulate_raw`)."""
+
+    plan: SimulationPlan
+    camera: PhoneCamera
+    effects: PhoneEffects
+    board: bool
+    offset: float
+    calibration_views: int
+    progress: bool
+
+    @property
+    def dist_a(self) -> tuple[float, float]:
+        return DISTORTION_A if "distortion" in self.effects else (0.0, 0.0)
+
+    @property
+    def dist_b(self) -> tuple[float, float]:
+        return DISTORTION_B if "distortion" in self.effects else (0.0, 0.0)
+
+    @property
+    def painting_width(self) -> float:
+        return self.plan.scene.shape[1] * self.plan.scene.pixel_size
+
+    def ext(self) -> str:
+        return ".mp4" if "h264" in self.effects else ".mkv"
+
+    def timeline(self) -> tuple[np.ndarray, CameraBTimeline]:
+        """Camera B's frames (the LED-off lead first) and phone A's frame times, hand clock."""
+        plan, lead = self.plan, self.effects.lead_s
+        n = plan.frame_count + int(round(lead * writer.FPS))
+        times = plan.video_start - lead + np.arange(n) / writer.FPS
+        r_wc = phone_orientation_at(times, plan.seed)
+        line = CameraBTimeline(times, np.column_stack(plan.trajectory.at(times)[:3]),
+                               times >= plan.video_start - 1e-9, r_wc[:, :, 2])
+        return times + self.offset, line
+
+    def led_on(self, times: np.ndarray) -> np.ndarray:
+        return (times >= self.plan.video_start - 1e-9).astype(np.float64)
+
+    def phone_view(self, texture: PlaneTexture, lit: bool, *, moving: bool = True,
+                   distance: float = PLANE.height) -> PhoneView:
+        fx = self.effects
+        lighting = None if not lit else LedLighting(
+            exponent=LED_EXPONENT if "led-falloff" in fx else 0.0,
+            ambient=AMBIENT if "ambient" in fx else 0.0, height=self.plan.plane.height)
+        blur = moving and "motion-blur" in fx
+        return PhoneView(self.camera.matrix, self.dist_a, self.camera.size, texture, lighting,
+                         readout_s=READOUT_S if moving and "rolling-shutter" in fx else 0.0,
+                         shutter_s=SHUTTER_S if blur else SHUTTER_OFF_S if moving else 0.0,
+                         samples=BLUR_SAMPLES if blur else SHUTTER_OFF_SAMPLES if moving else 1,
+                         distance=distance)
+
+
+def _execute(setup: RawSetup, folder: Path, truth: bool) -> dict:
+    plan, fx = setup.plan, setup.effects
     (folder / "truth").mkdir(exist_ok=True)
-    (folder / "board.json").write_text(json.dumps(spec.to_json(), indent=2) + "\n")
-    cv2.imwrite(str(folder / "board.png"), page_image(spec, dpi=50))
-    albedo = plan.scene.albedo @ LUMA
-    view = BoardView(spec, camera, albedo, plan.scene.shape[1] * plan.scene.pixel_size)
-    if calibration_views:
-        frames = (cv2.cvtColor(f, cv2.COLOR_GRAY2RGB) for f in
-                  calibration_frames(view, plan.seed, calibration_views))
-        writer.write_video(folder / "calibration.mkv", frames, fps=writer.FPS)
-    times_a = plan.video_start + offset + np.arange(plan.frame_count) / writer.FPS
-    frames = tqdm(phone_a_frames(plan, view, times_a, plan.seed), total=len(times_a),
-                  disable=not progress, desc="phone A", unit="frame")
-    writer.write_video(folder / "phone_a.mkv",
-                       (cv2.cvtColor(f, cv2.COLOR_GRAY2RGB) for f in frames), fps=writer.FPS)
-    ltm = render_ltm(plan.scene, plan.lattice, plan.plane.height, progress=progress)
+    boards = _write_boards(setup, folder)
+    times_a, line = setup.timeline()
+    _write_phone_a(setup, folder, boards["a"], times_a)
+    shading = Shading(led_exponent=LED_EXPONENT) if "led-falloff" in fx else GGX
+    ltm = render_ltm(plan.scene, plan.lattice, plan.plane.height, progress=setup.progress,
+                     shading=shading)
     exposure = EXPOSURE_PEAK / float(ltm.max())
     km = plan.sampling_ratio()
     if truth:
         ltm *= np.float32(exposure)
         write_truth(folder / "truth.zarr", plan, ltm, exposure=exposure, sampling_ratio=km)
     del ltm
-    frames = tqdm(video_frames(plan, exposure=exposure), total=plan.frame_count,
-                  disable=not progress, desc="phone B", unit="frame")
-    n = writer.write_video(folder / "video.mkv", frames, fps=writer.FPS)
-    writer.write_poses(folder / "truth" / "poses_true.csv", times_a - plan.video_start,
+    n = _write_camera_b(setup, folder, boards["b"], line, exposure)
+    t0 = plan.video_start - fx.lead_s  # camera B's first frame, hand clock
+    writer.write_poses(folder / "truth" / "poses_true.csv", times_a - t0,
                        *plan.trajectory.at(times_a)[:3])
-    Intrinsics(camera.size, camera.matrix, np.zeros(5)).write(folder / "truth" / "intrinsics.json")
-    info = {"time_offset": offset, "led_offset": list(camera.led_offset),
-            "camera": {"size": list(camera.size), "focal_px": camera.focal_px},
-            "fps": writer.FPS, "frames": n, "scene": plan.scene.name, "seed": plan.seed,
-            "exposure": exposure, "sampling_ratio": km, "lattice": list(plan.lattice.shape),
-            "board": "board.json"}
+    Intrinsics(setup.camera.size, setup.camera.matrix, np.array([*setup.dist_a, 0, 0, 0])) \
+        .write(folder / "truth" / "intrinsics.json")
+    info = _raw_info(setup, n, exposure, km)
     (folder / "truth" / "raw.json").write_text(json.dumps(info, indent=2) + "\n")
-    writer.write_acquisition_json(folder, video="video.mkv", plane=plan.plane, transfer="srgb",
-                                  extra={"phone_a": {"video": "phone_a.mkv",
-                                                     "calibration": "calibration.mkv",
-                                                     "board": "board.json"}})
+    _write_acquisition(setup, folder, boards)
     paths = {k: str(folder / v) for k, v in
-             {"folder": ".", "acquisition": "acquisition.json", "video": "video.mkv",
-              "phone_a": "phone_a.mkv", "calibration": "calibration.mkv", "board": "board.json",
-              "truth": "truth.zarr", "truth_poses": "truth/poses_true.csv"}.items()}
+             {"folder": ".", "acquisition": "acquisition.json", "video": "video" + setup.ext(),
+              "phone_a": "phone_a" + setup.ext(), "calibration": "calibration.mkv",
+              "board": "board.json", "truth": "truth.zarr",
+              "truth_poses": "truth/poses_true.csv"}.items()}
+    if "distortion" in fx:
+        paths.update(calibration_b=str(folder / "calibration_b.mkv"),
+                     board_b=str(folder / boards["b_name"]))
     return {**info, "paths": paths}
 
+
+def _write_boards(setup: RawSetup, folder: Path) -> dict:
+    """``board.json`` (phone A's: the A0 tracking board, or an A4 calibration page without
+    ``board``) and, for camera B's calibration, a coarse A4 board ``board_b.json``."""
+    spec = board_spec(BOARD_PAPER if setup.board else "A4", square_mm=BOARD_SQUARE_MM)
+    spec_b = board_spec("A4", squares=BOARD_B_SQUARES)
+    for name, sp in (("board", spec), ("board_b", spec_b)):
+        (folder / f"{name}.json").write_text(json.dumps(sp.to_json(), indent=2) + "\n")
+        cv2.imwrite(str(folder / f"{name}.png"), page_image(sp, dpi=50))
+    return {"a": spec, "b": spec_b, "b_name": "board_b.json"}
+
+
+def _phone_a_texture(setup: RawSetup, spec: BoardSpec) -> PlaneTexture:
+    albedo = setup.plan.scene.albedo @ LUMA
+    if setup.board:
+        return board_texture(spec, albedo, setup.painting_width)
+    return wall_with_painting(albedo, setup.painting_width, ppm=WALL_PX_PER_M,
+                              extent=WALL_EXTENT_M, seed=setup.plan.seed)
+
+
+def _write_phone_a(setup: RawSetup, folder: Path, spec: BoardSpec, times: np.ndarray) -> None:
+    if setup.calibration_views:
+        height = (0.28, 0.45) if setup.board else (0.18, 0.3)
+        still = setup.phone_view(board_texture(spec), False, moving=False,
+                                 distance=sum(height) / 2)
+        writer.write_video(folder / "calibration.mkv", _grey(calibration_frames(
+            still, setup.plan.seed, setup.calibration_views, height=height,
+            spread=0.15 if setup.board else 0.06)))
+    view = setup.phone_view(_phone_a_texture(setup, spec), not setup.board)
+    poses, rng = phone_poses(setup.plan, setup.camera), np.random.default_rng([setup.plan.seed,
+                                                                                606])
+    frames = (view.frame(t, poses, rng, setup.led_on) for t in
+              tqdm(times, disable=not setup.progress, desc="phone A", unit="frame"))
+    _write(setup, folder / ("phone_a" + setup.ext()), _grey(frames), setup.camera.size)
+
+
+def _grey(frames):
+    return (cv2.cvtColor(f, cv2.COLOR_GRAY2RGB) for f in frames)
+
+
+def _write(setup: RawSetup, path: Path, frames, size: tuple[int, int]) -> int:
+    if path.suffix == ".mp4":
+        return writer.write_h264(path, frames, fps=writer.FPS,
+                                 bitrate=h264_bitrate(size, writer.FPS))
+    return writer.write_video(path, frames, fps=writer.FPS)
+
+
+def _write_camera_b(setup: RawSetup, folder: Path, spec_b: BoardSpec, line: CameraBTimeline,
+                    exposure: float) -> int:
+    plan = setup.plan
+    h, w = plan.scene.shape
+    matrix = camera_b_matrix((w, h))
+    if "distortion" in setup.effects and setup.calibration_views:
+        view = PhoneView(matrix, setup.dist_b, (w, h), board_texture(spec_b), None,
+                         distance=sum(CAMERA_B_CALIBRATION_M) / 2)
+        writer.write_video(folder / "calibration_b.mkv", _grey(calibration_frames(
+            view, plan.seed + 1, max(setup.calibration_views, 12),
+            height=CAMERA_B_CALIBRATION_M, spread=0.35, aim=0.03)))
+    Intrinsics((w, h), matrix, np.array([*setup.dist_b, 0, 0, 0])) \
+        .write(folder / "truth" / "intrinsics_b.json")
+    records: list = []
+    frames = tqdm(camera_b_frames(plan, line, exposure=exposure, effects=setup.effects,
+                                  records=records), total=len(line.times),
+                  disable=not setup.progress, desc="phone B", unit="frame")
+    n = _write(setup, folder / ("video" + setup.ext()), frames, (w, h))
+    t = line.times - line.times[0]
+    np.savetxt(folder / "truth" / "camera_b.csv",
+               np.column_stack([t, line.led_on, np.asarray(records), line.axes]), delimiter=",",
+               header="t,led_on,gain,wb_r,wb_g,wb_b,axis_r,axis_s,axis_z", comments="",
+               fmt="%.9g")
+    return n
+
+
+def _raw_info(setup: RawSetup, n: int, exposure: float, km: float) -> dict:
+    plan, camera = setup.plan, setup.camera
+    return {"time_offset": setup.offset, "led_offset": list(camera.led_offset),
+            "camera": {"size": list(camera.size), "focal_px": camera.focal_px,
+                       "dist_coeffs": [*setup.dist_a, 0, 0, 0]},
+            "camera_b": {"intrinsics": "truth/intrinsics_b.json",
+                         "dist_coeffs": [*setup.dist_b, 0, 0, 0],
+                         "drift": "truth/camera_b.csv"},
+            "fps": writer.FPS, "frames": n, "scene": plan.scene.name, "seed": plan.seed,
+            "exposure": exposure, "sampling_ratio": km, "lattice": list(plan.lattice.shape),
+            "board": "board.json", "tracking": "board" if setup.board else "painting",
+            "painting_width_m": setup.painting_width, "led_off_lead_s": setup.effects.lead_s,
+            "effects": setup.effects.to_json(), "poses_true": "truth/poses_true.csv",
+            "truth": "LED held level (axis straight down), no ambient, no drift, no distortion"}
+
+
+def _write_acquisition(setup: RawSetup, folder: Path, boards: dict) -> None:
+    phone_a = {"video": "phone_a" + setup.ext(), "calibration": "calibration.mkv",
+               "board": "board.json"}
+    if not setup.board:
+        phone_a["painting_width"] = setup.painting_width
+    extra = {"phone_a": phone_a}
+    if "distortion" in setup.effects:
+        extra["camera_calibration"] = "intrinsics_b.json"
+        extra["camera_b"] = {"calibration": "calibration_b.mkv", "board": boards["b_name"]}
+    writer.write_acquisition_json(folder, video="video" + setup.ext(), plane=setup.plan.plane,
+                                  transfer="srgb", extra=extra)

@@ -90,3 +90,35 @@ def write_acquisition_json(folder: Path, *, video: str, plane: Plane, transfer: 
             "transfer": transfer}
     meta.update(extra or {})
     (folder / "acquisition.json").write_text(json.dumps(meta, indent=2) + "\n")
+
+
+def write_h264(path: Path, frames_rgb8: Iterable[np.ndarray], *, fps: float = FPS,
+               bitrate: int) -> int:
+    """Write 8-bit RGB frames as H.264 (libx264 via PyAV, yuv420p, High profile, a key frame
+    every second) at ``bitrate`` bit/s, as a phone records; returns the frames written."""
+    from fractions import Fraction
+
+    import av
+
+    n = 0
+    with av.open(str(path), "w") as container:
+        stream = None
+        for frame in frames_rgb8:
+            frame = np.ascontiguousarray(frame)
+            if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+                raise ValueError(f"frames must be (H, W, 3) uint8, got {frame.shape} {frame.dtype}")
+            if stream is None:
+                stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
+                stream.width, stream.height = frame.shape[1], frame.shape[0]
+                stream.pix_fmt = "yuv420p"
+                stream.bit_rate = int(bitrate)
+                stream.options = {"profile": "high", "g": str(int(round(fps))),
+                                  "preset": "medium", "maxrate": str(int(bitrate * 1.5)),
+                                  "bufsize": str(int(bitrate))}
+            for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")):
+                container.mux(packet)
+            n += 1
+        if stream is not None:
+            for packet in stream.encode():
+                container.mux(packet)
+    return n

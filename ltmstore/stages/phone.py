@@ -1,0 +1,213 @@
+"""Camera B as a phone films: lens distortion, room light and exposure drift, undone at ingest.
+
+A first pass over the video (:func:`scan_video`) measures every frame coarsely (mean linear RGB
+of :data:`BLOCK_GRID` x :data:`BLOCK_GRID` blocks) and keeps its first seconds. From that:
+
+* the LED-off lead (:func:`ltmstore.capture.lead.find_lead`) gives the ambient image, the
+  median of its frames (:mod:`ltmstore.stages.ambient`); its frames are not samples;
+* the drift of camera B's gain per colour channel (:mod:`ltmstore.stages.drift`) is corrected
+  when it is well above the estimate's noise, refused when it is too large or too poorly
+  determined to correct.
+
+Each frame is then, in linear light: undistorted (:mod:`ltmstore.stages.undistort`), divided by
+its gains, and the ambient image (in the same corrected units: measured at the lead's gain)
+is subtracted. Gains come first because the room light reached the sensor through the same
+gain as the LED's light.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ltmstore.capture.lead import Lead, find_lead
+from ltmstore.capture.video import VideoReader
+from ltmstore.core.dims import Plane, rgb_to_ycbcr
+from ltmstore.core.errors import LtmError, LtmWarning
+from ltmstore.stages.ambient import ambient_floor, ambient_image
+from ltmstore.stages.drift import DriftEstimate, estimate_drift
+from ltmstore.stages.frames import Lights
+from ltmstore.stages.occlusion import occluded_frames
+from ltmstore.stages.undistort import Undistorter
+
+BLOCK_GRID = 8
+LEAD_TAIL_FRAMES = 3  # the ambient frames nearest the step: the gain of the first lit frame
+HEAD_S = 4.0  # seconds of video kept from the first pass for the ambient image
+HEAD_BYTES = 256 * 1024**2  # at most this much of it
+# Drift: measured on clean simulated captures (canvas, relief; size 32; 9 s, 17 s and 51 s)
+# the estimated RMS log gain is 0.002-0.005 with a standard error of 0.004-0.007. Below
+# DRIFT_MIN (and below DRIFT_SIGMAS standard errors) a capture is taken as locked and left
+# unchanged.
+DRIFT_MIN = 0.01
+DRIFT_SIGMAS = 4.0
+MAX_DRIFT_SPAN = math.log(4.0)  # larger gain changes are not corrected (noise, clipping)
+# A drift whose data-only standard error (median over frames) is larger than this is refused:
+# measured 0.006 (51 s scribble), 0.016 (17 s), 0.09 (9 s) with actual errors of the
+# correction 0.005, 0.033 and 0.10 for a 25 % exposure wave.
+MAX_DRIFT_STDERR = 0.02
+# RMS misfit (log units, per frame) of "a static scene times a smooth gain": measured
+# 0.002-0.005 on simulated captures with and without drift, room light, distortion; 0.068 with
+# the simulator's auto exposure (a gain that jumps when the torch comes on and follows the
+# frame's brightness with a 0.4 s lag). Above this the frames are not a fixed exposure's.
+MAX_DRIFT_RESIDUAL = 0.02
+LOCK_ADVICE = ("lock exposure and white balance on camera B (AE/AWB lock) and record again")
+# Without a lead: the darkest 2 % of each block's frames over its median, median over blocks
+# (:func:`ltmstore.stages.ambient.ambient_floor`). Measured 0.47 on a clean simulated canvas
+# (no room light: the LED's own fall-off over the plane), 0.60 with a room light of 30 % of the
+# mean lit level: the floor cannot tell a modest room light from the LED's fall-off, so the
+# warning is kept for a room light about as strong as the LED (floor above 0.75), where the LTM
+# would be mostly room light.
+AMBIENT_FLOOR_WARN = 0.75
+
+
+@dataclass
+class Scan:
+    """The first pass over camera B's video."""
+
+    index: np.ndarray  # frame numbers
+    blocks: np.ndarray  # (n, B, 3) mean linear RGB per block
+    brightness: np.ndarray  # (n,) mean linear luminance
+    head: list[np.ndarray]  # the first frames' uint8 RGB codes
+    fps: float
+
+
+def scan_video(path: Path, lut: np.ndarray, *, allow_dropped: bool) -> Scan:
+    """Decode the video once: block means, brightness and the first frames."""
+    index, blocks, brightness, head = [], [], [], []
+    keep = None
+    with VideoReader(path, allow_dropped=allow_dropped) as video:
+        for i, rgb in video.frames():
+            if keep is None:
+                keep = max(1, min(int(HEAD_S * video.fps), HEAD_BYTES // max(rgb.nbytes, 1)))
+            linear = lut[rgb]
+            small = cv2.resize(linear, (BLOCK_GRID, BLOCK_GRID), interpolation=cv2.INTER_AREA)
+            index.append(i)
+            blocks.append(small.reshape(-1, 3))
+            brightness.append(float(rgb_to_ycbcr(small)[..., 0].mean()))
+            if len(head) < keep and i == len(head):
+                head.append(rgb)
+        fps = video.fps
+    return Scan(np.array(index), np.array(blocks, dtype=np.float64), np.array(brightness),
+                head, fps)
+
+
+@dataclass
+class Corrections:
+    """Per-frame corrections of camera B, and their record for the ingest stage."""
+
+    undistort: Undistorter | None
+    gains: dict[int, np.ndarray] | None  # frame number -> (3,) gain to divide by
+    ambient: np.ndarray | None  # (H, W, 3) linear RGB, corrected units
+    lead_end: int | None  # frames numbered below this are the LED-off lead (not samples)
+    record: dict
+
+    def linear(self, i: int, rgb: np.ndarray, lut: np.ndarray, video: Path) -> np.ndarray:
+        """Corrected linear Y, Cb, Cr ``(H, W, 3)`` float32 of frame ``i``."""
+        linear = lut[rgb]
+        if self.undistort is not None:
+            self.undistort.check_size(rgb, video)
+            linear = self.undistort.apply(linear)
+        if self.gains is not None:
+            linear = linear / self.gains[i].astype(np.float32)
+        if self.ambient is not None:
+            linear = linear - self.ambient
+        return rgb_to_ycbcr(linear)
+
+
+def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
+                     undistort: Undistorter | None, lut: np.ndarray) -> Corrections:
+    """Decide the corrections of a scanned video (see the module docstring).
+
+    Raises
+    ------
+    LtmError
+        When camera B's gain drifts more than can be corrected, or too uncertainly.
+    """
+    t = scan.index / scan.fps
+    lead = find_lead(scan.brightness, scan.fps)
+    lead_end = None if lead is None else int(scan.index[lead.excluded[1] - 1]) + 1
+    lit = lights.valid if lead_end is None else lights.valid & (scan.index >= lead_end)
+    # A hand's shadow is no change of exposure: the frames ingest rejects as occluded stay out.
+    lit = lit & ~occluded_frames(scan.brightness, lights.r, lights.s, lights.z, lit)
+    drift = estimate_drift(scan.blocks, t, lights.r, lights.s, lights.z, lit, plane)
+    gains, drift_record = _drift_decision(drift)
+    per_frame = None if gains is None else dict(zip(scan.index.tolist(), gains, strict=True))
+    ambient, ambient_record = _ambient(scan, lead, lit, gains, undistort, lut)
+    record = {"undistort": None if undistort is None else undistort.to_json(),
+              "ambient": ambient_record, "drift": drift_record}
+    return Corrections(undistort, per_frame, ambient, lead_end, record)
+
+
+def _drift_decision(drift: DriftEstimate | None) -> tuple[np.ndarray | None, dict]:
+    if drift is None:
+        return None, {"judged": False, "reason": "too few lit frames at known positions",
+                      "corrected": False}
+    amplitude, noise, span = drift.amplitude(), drift.noise(), drift.span()
+    determination = drift.determination()
+    record = {"judged": True, "rms_log_gain": amplitude, "stderr_log_gain": noise,
+              "stderr_data_log_gain": determination, "span_log_gain": span,
+              "residual": drift.residual,
+              "threshold": max(DRIFT_MIN, DRIFT_SIGMAS * noise)}
+    if drift.residual > MAX_DRIFT_RESIDUAL:
+        raise LtmError(f"camera B's frames change in a way a fixed exposure cannot explain (RMS "
+                       f"misfit {drift.residual:.1%} per frame, expected at most "
+                       f"{MAX_DRIFT_RESIDUAL:.0%}: auto exposure?); {LOCK_ADVICE}")
+    if amplitude <= record["threshold"]:
+        return None, {**record, "corrected": False}
+    if span > MAX_DRIFT_SPAN or determination > MAX_DRIFT_STDERR:
+        why = (f"changes by a factor {math.exp(span):.2f}, more than {math.exp(MAX_DRIFT_SPAN):g}"
+               if span > MAX_DRIFT_SPAN else
+               f"cannot be measured to better than {determination:.1%} (the light path comes "
+               "back to the same places too rarely)")
+        raise LtmError(f"camera B's exposure or white balance drifts during the capture (RMS "
+                       f"{amplitude:.1%}) and {why}; {LOCK_ADVICE}")
+    gains = np.exp(drift.log_gain)
+    lit = drift.lit
+    channel_rms = np.sqrt(np.mean(drift.log_gain[lit] ** 2, axis=0))
+    return gains, {**record, "corrected": True, "rms_log_gain_rgb": channel_rms.tolist(),
+                   "gain_range": [float(gains[lit].min()), float(gains[lit].max())]}
+
+
+def _ambient(scan: Scan, lead: Lead | None, lit: np.ndarray, gains: np.ndarray | None,
+             undistort: Undistorter | None, lut: np.ndarray) -> tuple[np.ndarray | None, dict]:
+    if lead is None:
+        floor = ambient_floor(scan.blocks, lit)
+        record = {"measured": False, "floor_fraction": floor,
+                  "note": "no LED-off lead at the start of video B: any room light is part of "
+                          "the LTM"}
+        if floor is not None and floor > AMBIENT_FLOOR_WARN:
+            warnings.warn(f"video B never gets darker than {floor:.0%} of its usual brightness "
+                          "and has no LED-off lead: the LTM includes the room light (start "
+                          "both recordings with the LED off for a second, or darken the room)",
+                          LtmWarning, stacklevel=3)
+        return None, record
+    frames = [f for k, f in enumerate(scan.head) if lead.ambient[0] <= k < lead.ambient[1]]
+    image = ambient_image(frames, lut)
+    if undistort is not None:
+        image = undistort.apply(image)
+    lead_gain = None
+    if gains is not None:
+        lead_gain = _lead_gain(scan, lead, gains)
+        image = image / lead_gain.astype(np.float32)
+    return image, {"measured": True, **lead.to_json(), "frames_used": len(frames),
+                   "level_rgb": image.reshape(-1, 3).mean(axis=0).tolist(),
+                   "lead_gain": None if lead_gain is None else lead_gain.tolist()}
+
+
+def _lead_gain(scan: Scan, lead: Lead, gains: np.ndarray) -> np.ndarray:
+    """Camera B's gain per channel over the ambient frames, in the units of ``gains``.
+
+    The gain is continuous at the step (a camera's exposure control lags the light): the last
+    ambient frames have the gain of the first lit frame. Within the lead only the gain changes
+    (the room light is steady), so the ambient frames' median over the last ones is the gain's
+    change across the lead.
+    """
+    colour = scan.blocks[slice(*lead.ambient)].mean(axis=1)  # (k, 3)
+    last = np.median(colour[-LEAD_TAIL_FRAMES:], axis=0)
+    trend = np.divide(np.median(colour, axis=0), last, out=np.ones(3), where=last > 0)
+    return gains[lead.excluded[1]] * trend
