@@ -27,22 +27,14 @@ from ltmstore.capture.painting_track import (
 from ltmstore.capture.track import TrackConfig
 from ltmstore.core.dims import LUMA
 from ltmstore.core.errors import LtmError
+from ltmstore.synthetic.raw import DOWN, rotation
 
 SIZE, FOCAL = (640, 360), 500.0
 K = np.array([[FOCAL, 0, SIZE[0] / 2 - 0.5], [0, FOCAL, SIZE[1] / 2 - 0.5], [0, 0, 1]])
 OFFSET = (0.012, -0.004, 0.002)
 WIDTH = 0.2  # m
 WALL = 0.45
-DOWN = np.diag([1.0, -1.0, -1.0])  # camera axes (plane coordinates) looking straight down
 INTR = Intrinsics(SIZE, K, np.zeros(5))
-
-
-def _rot(axis: int, angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    i, j = [k for k in range(3) if k != axis]
-    m = np.eye(3)
-    m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
-    return m
 
 
 def _plane_to_texture(n: int) -> np.ndarray:
@@ -93,7 +85,7 @@ def wave(n, *, reach=0.08, fps=30.0, t=None):
     z = 0.3 + 0.01 * np.sin(2 * np.pi * 0.4 * t)
     yaw = 0.3 * np.sin(0.3 * t)
     tx, ty = np.radians(2) * np.sin(2 * t + 1), np.radians(2) * np.sin(1.4 * t)
-    r_wc = [_rot(2, a) @ _rot(0, b) @ _rot(1, c) @ DOWN
+    r_wc = [rotation(2, a) @ rotation(0, b) @ rotation(1, c) @ DOWN
             for a, b, c in zip(yaw, tx, ty, strict=True)]
     return t, np.column_stack([r, s, z]), r_wc
 

@@ -25,9 +25,9 @@ from ltmstore.synthetic.raw import (
     DOWN,
     BoardView,
     PhoneCamera,
-    _rot,
     camera_extrinsics,
     led_to_camera,
+    rotation,
 )
 
 CAMERA = PhoneCamera(size=(640, 360), focal_px=500.0, led_offset=(0.012, -0.004, 0.002))
@@ -48,7 +48,7 @@ def render(view, led, r_wc, seed=0):
 
 def test_estimate_pose_recovers_exact_projection(scene):
     spec, _, intr, _ = scene
-    r_wc = _rot(2, 0.3) @ _rot(0, 0.05) @ DOWN
+    r_wc = rotation(2, 0.3) @ rotation(0, 0.05) @ DOWN
     r_cb, t = camera_extrinsics(spec, np.array([0.05, -0.02, 0.3]), r_wc)
     xy = np.stack(np.meshgrid(np.linspace(0.4, 0.7, 5), np.linspace(0.3, 0.5, 4)), -1)
     obj = np.column_stack([xy.reshape(-1, 2), np.zeros(20)])
@@ -74,7 +74,8 @@ def test_led_offset_axes_straight_down(scene):
 ])
 def test_track_frame_is_sub_millimetre(scene, led, yaw, tilt):
     spec, view, intr, det = scene
-    r_wc = _rot(2, yaw) @ _rot(0, np.radians(tilt)) @ _rot(1, np.radians(tilt / 2)) @ DOWN
+    r_wc = (rotation(2, yaw) @ rotation(0, np.radians(tilt))
+            @ rotation(1, np.radians(tilt / 2)) @ DOWN)
     pose = track_frame(det, render(view, led, r_wc), 0.0, intr,
                        TrackConfig(led_offset=CAMERA.led_offset))
     assert pose.status == "ok" and pose.corners >= 10
@@ -88,7 +89,7 @@ def test_track_frame_is_sub_millimetre(scene, led, yaw, tilt):
 def test_flags_tilted_and_boardless_frames(scene):
     spec, view, intr, det = scene
     config = TrackConfig(led_offset=CAMERA.led_offset, max_tilt_deg=15.0)
-    tilted = track_frame(det, render(view, (0, 0, 0.3), _rot(0, np.radians(25)) @ DOWN), 0.0,
+    tilted = track_frame(det, render(view, (0, 0, 0.3), rotation(0, np.radians(25)) @ DOWN), 0.0,
                          intr, config)
     assert tilted.status == "tilted"
     blank = track_frame(det, np.full((360, 640), 128, np.uint8), 0.0, intr, config)

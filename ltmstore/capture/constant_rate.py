@@ -12,6 +12,7 @@ output frame is the latest recorded frame at or before its time (H.264 ``.mp4``,
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -77,22 +78,27 @@ def probe(path: str | os.PathLike, what: str) -> VideoFacts:
 def first_rate(path: str | os.PathLike) -> int | None:
     """The common rate of the frames in the start of a recording (its first chunk, which may
     end mid-frame), or None when it holds fewer than 3 readable frame times."""
+    pts = list(_packet_times(path))
+    if len(pts) < 3:
+        return None
+    times = np.sort(np.array(pts))
+    return VideoFacts(times=times - times[0], size=(0, 0), declares_length=False).rate
+
+
+def _packet_times(path: str | os.PathLike) -> Iterator[float]:
+    """Time stamps (seconds) of the video packets up to the first that cannot be read (a first
+    chunk ends mid-frame)."""
     import av
 
-    pts = []
     try:
         with av.open(str(path)) as container:
             stream = container.streams.video[0]
             base = float(stream.time_base)
             for packet in container.demux(stream):
                 if packet.size and packet.pts is not None:
-                    pts.append(packet.pts * base)
+                    yield packet.pts * base
     except (av.error.FFmpegError, IndexError, OSError):
-        pass  # a truncated piece: the frames read so far
-    if len(pts) < 3:
-        return None
-    times = np.sort(np.array(pts))
-    return VideoFacts(times=times - times[0], size=(0, 0), declares_length=False).rate
+        return
 
 
 def rewrite_constant_rate(src: str | os.PathLike, dst: str | os.PathLike, rate: int, *,

@@ -26,6 +26,7 @@ import json
 import os
 import socket
 import ssl
+import sys
 import tempfile
 import threading
 from http import HTTPStatus
@@ -249,7 +250,10 @@ class LiveServer(ThreadingHTTPServer):
         return f"{self.scheme}://{host}:{port}{path}?token={self.session.token}"
 
     def handle_error(self, request, client_address) -> None:
-        pass  # a phone that drops its connection mid-request: it sends again
+        """Quiet about a phone that drops its connection mid-request (it sends again); any
+        other error is reported as the standard library does."""
+        if not isinstance(sys.exc_info()[1], (ConnectionError, TimeoutError, ssl.SSLError)):
+            super().handle_error(request, client_address)
 
 
 def session_certificate(host: str) -> tuple[ssl.SSLContext, str]:

@@ -119,7 +119,8 @@ class PhoneCamera:
                          [0, 0, 1]])
 
 
-def _rot(axis: int, angle: float) -> np.ndarray:
+def rotation(axis: int, angle: float) -> np.ndarray:
+    """The rotation by ``angle`` (radians) about coordinate axis ``axis`` (0, 1, 2)."""
     c, s = np.cos(angle), np.sin(angle)
     i, j = [k for k in range(3) if k != axis]
     m = np.eye(3)
@@ -151,7 +152,7 @@ def phone_orientation(t: np.ndarray, seed: int) -> np.ndarray:
         return np.interp(t, grid, np.deg2rad(noise))
 
     yaw, tx, ty = smooth(YAW_WANDER_DEG / 2, 1.5), smooth(TILT_DEG, 0.4), smooth(TILT_DEG, 0.4)
-    return np.stack([_rot(2, a) @ _rot(0, b) @ _rot(1, c) @ DOWN
+    return np.stack([rotation(2, a) @ rotation(0, b) @ rotation(1, c) @ DOWN
                      for a, b, c in zip(yaw, tx, ty, strict=True)])
 
 
@@ -161,14 +162,7 @@ class BoardView:
     def __init__(self, spec: BoardSpec, camera: PhoneCamera, albedo: np.ndarray | None = None,
                  object_width: float = 0.2) -> None:
         self.spec, self.camera = spec, camera
-        tex = board_image(spec, TEXTURE_PX_PER_M).astype(np.float32) / 255
-        if albedo is not None:
-            side = round(object_width * TEXTURE_PX_PER_M)
-            patch = cv2.resize(np.asarray(albedo, np.float32), (side, side),
-                               interpolation=cv2.INTER_LINEAR)
-            y0, x0 = (tex.shape[0] - side) // 2, (tex.shape[1] - side) // 2
-            tex[y0:y0 + side, x0:x0 + side] = np.clip(patch, 0, 1)
-        self.texture = cv2.GaussianBlur(tex, (0, 0), 0.7)
+        self.texture = board_texture(spec, albedo, object_width).albedo
         w, h = camera.size
         u, v = np.meshgrid(np.arange(w) - w / 2, np.arange(h) - h / 2)
         self.falloff = ((1 + (u * u + v * v) / camera.focal_px**2) ** -2).astype(np.float32)
