@@ -114,7 +114,7 @@ def test_folder_holds_phone_as_whole_video_tracked(captured):
     assert (captured["folder"] / "phone_a.webm").is_file()
     assert a["recording"]["recorded"] == a["recording"]["acked"] >= 4
     assert finish["placed_frames"] == len(poses) >= 0.9 * finish["frames"]
-    assert len(poses) > 2 * len(path) and np.all(np.diff(poses.t) > 0)
+    assert len(poses) > len(path) and np.all(np.diff(poses.t) > 0)  # live: 3-8 frames per s
     assert np.median(np.diff(poses.t)) == pytest.approx(1 / 15, abs=5e-3)  # its own times
     dense = np.column_stack([poses.t, poses.r, poses.s, poses.z])
     shift = best_shift(path, dense)
@@ -133,10 +133,14 @@ def test_shown_coverage_is_the_servers_and_the_folders(captured):
     a = captured["a"]
     last = a["last"]["coverage"]
     shown, target = captured["shown"], a["config"]["target_km"]
-    assert shown["km"] == f"K/M {last['k_over_m']:.3f} of {target:.2f}"
+    # JavaScript's toFixed rounds a half up, Python's format to even (45/144 = 0.3125): the
+    # numbers shown are compared to their rounding, not as strings
+    km, of_target = shown["km"].removeprefix("K/M ").split(" of ")
+    assert abs(float(km) - last["k_over_m"]) <= 5e-4 + 1e-12 and float(of_target) == target
     assert shown["cells"] == f"{last['covered']} of {last['cells']} covered"
-    assert shown["snr"] == (f"{a['last']['expected_snr_db']:.1f} dB ± "
-                            f"{a['last']['expected_snr_spread_db']:.1f}")
+    snr, spread = shown["snr"].split(" dB ± ")
+    assert abs(float(snr) - a["last"]["expected_snr_db"]) <= 0.05 + 1e-12
+    assert abs(float(spread) - a["last"]["expected_snr_spread_db"]) <= 0.05 + 1e-12
     assert shown["frames"] == f"{a['placed']} placed of {a['answered']}"
     assert shown["warning"] is None  # all placed
     assert (shown["enough"] is not None) == a["last"]["enough"]

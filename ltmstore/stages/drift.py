@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from ltmstore.core.dims import Plane
 
@@ -31,6 +32,7 @@ KNOT_S = 0.5  # seconds between gain knots
 POSITION_GRID = 11  # hats per plane side for each block's brightness as a function of position
 SMOOTHNESS = 0.3  # weight of the first difference of x between knots (per unit of log gain)
 MIN_FRAMES = 90  # fewer lit frames: the drift is not judged
+MIN_DOF = 45  # fewer lit frames than this beyond the model's parameters: not judged either
 MIN_BLOCK_FRACTION = 0.02  # blocks darker than this fraction of the brightest are left out
 
 
@@ -99,7 +101,8 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
     Returns
     -------
     DriftEstimate or None
-        None when fewer than :data:`MIN_FRAMES` frames are lit (too little to judge).
+        None when fewer than :data:`MIN_FRAMES` frames are lit, or fewer than :data:`MIN_DOF`
+        beyond the parameters of the model (a short path: its misfit would be noise).
     """
     lit = np.asarray(lit, dtype=bool) & np.isfinite(r) & np.isfinite(s) & np.isfinite(z)
     if lit.sum() < MIN_FRAMES:
@@ -107,8 +110,10 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
     knots = _knots(t[lit])
     m_all = _hats_1d(t, knots)
     m = m_all[lit]
-    w = _position_basis(r[lit], s[lit], z[lit], plane)
-    q, _ = np.linalg.qr(w)
+    q = scipy.linalg.orth(_position_basis(r[lit], s[lit], z[lit], plane))  # the hats visited
+    dof = int(lit.sum()) - q.shape[1] - len(knots)
+    if dof < MIN_DOF:
+        return None
     m_perp = m - q @ (q.T @ m)  # (I - P_W) M
     d = np.diff(np.eye(len(knots)), axis=0)
     data = m_perp.T @ m_perp + np.outer(m.mean(axis=0), m.mean(axis=0))  # gauge: mean zero
@@ -122,7 +127,6 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
         y_perp = y - q @ (q.T @ y)
         x = inverse @ (m_perp.T @ y_perp)
         resid = y_perp - m_perp @ x
-        dof = max(int(lit.sum()) - w.shape[1] - len(knots) // 2, 1)
         sigma2 = float(resid @ resid) / dof
         log_gain[:, c] = m_all @ x - float(np.mean(m @ x))
         stderr[:, c] = np.sqrt(sigma2 * np.einsum("ij,jk,ik->i", m_all, inverse, m_all))

@@ -145,7 +145,7 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
 
 def _drift_decision(drift: DriftEstimate | None) -> tuple[np.ndarray | None, dict]:
     if drift is None:
-        return None, {"judged": False, "reason": "too few lit frames at known positions",
+        return None, {"judged": False, "reason": "too few lit frames at known positions to judge",
                       "corrected": False}
     amplitude, noise, span = drift.amplitude(), drift.noise(), drift.span()
     determination = drift.determination()
