@@ -55,8 +55,10 @@ def true_frames(sim):
 def best_shift(path: np.ndarray, truth: np.ndarray) -> float:
     """The clock shift (page time + shift = truth time) that lays the drawn path on the true
     one: least RMS distance to the true path interpolated at the shifted times."""
-    lo, hi = truth[0, 0] - path[0, 0], truth[-1, 0] - path[-1, 0]
-    shifts = np.arange(lo, hi, 0.002)
+    ends = truth[0, 0] - path[0, 0], truth[-1, 0] - path[-1, 0]
+    # the shifts that keep the path within the truth; a path a little longer than the truth
+    # (phone A's recording starts after its first live frame) is searched around its ends
+    shifts = np.arange(min(ends) - 0.25, max(ends) + 0.25, 0.002)
     rms = [np.mean((np.interp(path[:, 0] + c, truth[:, 0], truth[:, 1]) - path[:, 1]) ** 2
                    + (np.interp(path[:, 0] + c, truth[:, 0], truth[:, 2]) - path[:, 2]) ** 2)
            for c in shifts]
