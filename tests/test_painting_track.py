@@ -281,7 +281,7 @@ def test_cli_painting_intrinsics(capture, distorted_b, tmp_path):
     proc = run_ltm("track", folder / "a.mkv", "--painting", distorted_b[0] / "b.mkv",
                    "--painting-width", "0.2", "--painting-intrinsics", folder / "intrinsics.json",
                    "--intrinsics", folder / "intrinsics.json", "-o", tmp_path / "p.csv")
-    one_line_error(proc, "camera B's intrinsics are for 640x360 pixel frames but painting map "
+    one_line_error(proc, "are for 640x360 pixel frames but painting map "
                    "video")
     proc = run_ltm("track", folder / "a.mkv", "--board", "b.json", "--painting-intrinsics",
                    folder / "intrinsics.json", "--intrinsics", folder / "intrinsics.json",

@@ -50,6 +50,7 @@ from ltmstore.capture.track import (
     refuse_existing,
     save_tracks,
 )
+from ltmstore.capture.undistort import Undistorter
 from ltmstore.core.errors import LtmError
 
 STATUSES = ("ok", "no_painting", "poor_pose", "tilted", "out_of_plane")
@@ -163,7 +164,8 @@ class PaintingMap:
         undo = _map_undistorter(intrinsics, path)
         picked = [undo(g) for i, _t, g in video_frames(path, what="painting map video")
                   if i in keep]
-        return cls(np.median(np.stack(picked), axis=0).round().astype(np.uint8), width)
+        median = np.median(np.stack(picked), axis=0)  # bicubic: may overshoot 0..255
+        return cls(median.round().clip(0, 255).astype(np.uint8), width)
 
     @classmethod
     def load(cls, path: str | os.PathLike, width: float,
@@ -192,16 +194,11 @@ def _map_undistorter(intr: Intrinsics | None, path: str | os.PathLike):
     without ``intr``); it refuses a frame of another size than the calibration's."""
     if intr is None:
         return lambda gray: gray
-    w, h = intr.image_size
-    maps = cv2.initUndistortRectifyMap(intr.matrix, intr.distortion, None, intr.matrix, (w, h),
-                                       cv2.CV_32FC1)
+    undistorter = Undistorter(intr, "--painting-intrinsics")
 
     def undo(gray: np.ndarray) -> np.ndarray:
-        if gray.shape[:2] != (h, w):
-            raise LtmError(f"camera B's intrinsics are for {w}x{h} pixel frames but painting "
-                           f"map video {str(path)!r} has {gray.shape[1]}x{gray.shape[0]}; "
-                           "expected camera B's calibration at its recording size")
-        return cv2.remap(gray, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        undistorter.check_size(gray, Path(path), what="painting map video")
+        return undistorter.apply(gray)
 
     return undo
 

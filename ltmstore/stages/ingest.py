@@ -44,6 +44,7 @@ from tqdm.auto import tqdm
 
 from ltmstore.capture.acquisition import Acquisition, load_acquisition, load_poses
 from ltmstore.capture.register import ViewRig
+from ltmstore.capture.undistort import Undistorter
 from ltmstore.capture.video import VideoReader
 from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
@@ -59,7 +60,6 @@ from ltmstore.stages.frames import (
 )
 from ltmstore.stages.occlusion import occluded_frames
 from ltmstore.stages.phone import Corrections, plan_corrections, scan_video
-from ltmstore.stages.undistort import Undistorter
 
 Z_TOLERANCE_FRACTION = 0.05
 

@@ -9,7 +9,7 @@ of :data:`BLOCK_GRID` x :data:`BLOCK_GRID` blocks) and keeps its first seconds. 
   when it is well above the estimate's noise, refused when it is too large or too poorly
   determined to correct.
 
-Each frame is then, in linear light: undistorted (:mod:`ltmstore.stages.undistort`), divided by
+Each frame is then, in linear light: undistorted (:mod:`ltmstore.capture.undistort`), divided by
 its gains, and the ambient image (in the same corrected units: measured at the lead's gain)
 is subtracted. Gains come first because the room light reached the sensor through the same
 gain as the LED's light.
@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from ltmstore.capture.lead import Lead, find_lead
+from ltmstore.capture.undistort import Undistorter
 from ltmstore.capture.video import VideoReader
 from ltmstore.core.dims import Plane, rgb_to_ycbcr
 from ltmstore.core.errors import LtmError, LtmWarning
@@ -33,7 +34,6 @@ from ltmstore.stages.ambient import ambient_floor, ambient_image
 from ltmstore.stages.drift import DriftEstimate, estimate_drift
 from ltmstore.stages.frames import Lights
 from ltmstore.stages.occlusion import occluded_frames
-from ltmstore.stages.undistort import Undistorter
 
 BLOCK_GRID = 8
 LEAD_TAIL_FRAMES = 3  # the ambient frames nearest the step: the gain of the first lit frame

@@ -1,4 +1,5 @@
-"""Camera B's lens distortion undone at ingest, from its ``ltm calibrate`` intrinsics.
+"""Camera B's lens distortion undone, from its ``ltm calibrate`` intrinsics: at ingest on every
+frame, and on the frames of a painting map (:mod:`ltmstore.capture.painting_track`).
 
 Every frame is resampled (bicubic, :func:`cv2.remap`; bilinear loses 2.7 dB more SNR on fine
 texture in a simulated round trip) onto the ideal pinhole image of the same
@@ -41,12 +42,13 @@ class Undistorter:
         """Read an ``ltm calibrate`` intrinsics file (one-line errors for a bad file)."""
         return cls(load_intrinsics(path), str(path))
 
-    def check_size(self, frame: np.ndarray, video: Path) -> None:
-        """Raise :class:`LtmError` unless ``frame`` has the calibrated image size."""
+    def check_size(self, frame: np.ndarray, video: Path, what: str = "video") -> None:
+        """Raise :class:`LtmError` unless ``frame`` (of ``what`` ``video``) has the calibrated
+        image size."""
         width, height = self.intrinsics.image_size
         if frame.shape[:2] != (height, width):
-            raise LtmError(f"camera_calibration {self.source!r} is for {width}x{height} pixel "
-                           f"frames but video {str(video)!r} has {frame.shape[1]}x"
+            raise LtmError(f"camera B's intrinsics {self.source!r} are for {width}x{height} pixel "
+                           f"frames but {what} {str(video)!r} has {frame.shape[1]}x"
                            f"{frame.shape[0]}; expected the calibration of camera B at its "
                            "recording size")
 
