@@ -17,7 +17,9 @@ repository), the median of ``--repeats`` runs of:
   the chosen models on the lattice for every pixel and writing ``ltm``;
 * ``ltm --help`` (what the command costs before it does anything);
 * ``relight-cli -b BASIS CAPTURE OUT`` for each of ``--relight-bases``, when ``--relight-cli``
-  (default: ``relight-cli`` on ``PATH``) exists; the column is left out otherwise.
+  (default: ``relight-cli`` on ``PATH``) exists; the column is left out otherwise. ``CAPTURE``
+  is the ``.lp``'s folder, or where its photographs lie in a subfolder (loewenkopf), a
+  temporary folder of links to them (:func:`relight_input`).
 
 The machine is shared: the load average is recorded before and after each capture, beside the
 numbers (medians, no CPU pinning). Writes ``rti_speed.json`` and ``rti_speed.png`` to ``--out``;
@@ -97,6 +99,25 @@ def peer_capture(data: Path, tmp: Path) -> Path:
     return folder / "dirs.lp"
 
 
+def relight_input(lp: Path, tmp: Path) -> Path:
+    """The folder ``relight-cli`` fits: the ``.lp``'s own where its photographs lie beside it,
+    else (loewenkopf's ``jpg/``: relight-cli reads only the ``.lp``'s folder and refuses a
+    count that differs) a temporary folder of links to them and an ``.lp`` naming the links."""
+    names, directions = read_lp(lp)
+    if all(Path(name).parent == Path(".") for name in names):
+        return lp.parent
+    folder = tmp / "relight-input"
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir()
+    lines = [str(len(names))]
+    for i, (name, direction) in enumerate(zip(names, directions, strict=True)):
+        link = f"im{i:04d}{Path(name).suffix}"
+        (folder / link).symlink_to((lp.parent / name).resolve())
+        lines.append(f"{link} {' '.join(f'{v:.8f}' for v in direction)}")
+    (folder / "dirs.lp").write_text("\n".join(lines) + "\n")
+    return folder
+
+
 def speed(lp: Path, tmp: Path, repeats: int, relight_cli: str | None,
           bases: list[str]) -> dict:
     """Medians over ``repeats`` of the whole commands, the library calls and the fit."""
@@ -108,6 +129,7 @@ def speed(lp: Path, tmp: Path, repeats: int, relight_cli: str | None,
     def add(key: str, value: float) -> None:
         rows.setdefault(key, []).append(value)
 
+    peer_input = relight_input(lp, tmp) if relight_cli else None
     load_before = load()
     for _ in range(repeats):
         wall, cpu = run([*ltm, "ingest-rti", str(lp), str(store), "--overwrite"])
@@ -132,7 +154,7 @@ def speed(lp: Path, tmp: Path, repeats: int, relight_cli: str | None,
             try:
                 add(f"relight_cli_{basis}_s", run([relight_cli, "-b", basis,
                                                    *RELIGHT_PLANES.get(basis, ()),
-                                                   str(lp.parent), str(out)])[0])
+                                                   str(peer_input), str(out)])[0])
             except subprocess.CalledProcessError as exc:  # e.g. images in a subfolder
                 refused[basis] = (exc.stdout + exc.stderr).decode(errors="replace").strip()
                 refused[basis] = refused[basis].splitlines()[-1] if refused[basis] else ""

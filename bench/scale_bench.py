@@ -4,7 +4,8 @@ Run: ``python bench/scale_bench.py --config toys`` (about 160k pixels on a 50 x 
 pixel count of the paper's 320 x 512 Toys scene) or ``--config notre-dame`` (1024 x 1024 pixels
 on a 32 x 80 lattice: a 10.7 GB float32 LTM, the paper's Notre Dame-b size). Writes
 ``scale_<config>.json``: stage times, peak memory of the whole process tree (main process and
-Dask workers, sampled every 0.2 s), and the cost of relighting one point light.
+Dask workers, sampled every 0.2 s), the cost of relighting one point light, and SNR_Y against
+the simulation's truth on a fixed pixel subset (:func:`truth_subset`).
 """
 
 from __future__ import annotations
@@ -18,15 +19,18 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import psutil
 
 from ltmstore import __version__
-from ltmstore.core.dims import Plane
+from ltmstore.core.dims import LUMA, Lattice, Plane
 from ltmstore.core.store import open_store
 from ltmstore.judge.benchmark import random_lights, relight_cost
+from ltmstore.judge.evaluate import snr_db
 from ltmstore.stages.ingest import ingest
 from ltmstore.stages.reconstruct import reconstruct
-from ltmstore.synthetic.simulate import simulate_acquisition
+from ltmstore.synthetic.render import iter_frames
+from ltmstore.synthetic.simulate import plan_simulation, simulate_acquisition
 
 CONFIGS = {
     # 400 x 400 = 160,000 pixels (Toys: 320 x 512 = 163,840), 8 mm cells over a 40 cm square.
@@ -36,6 +40,23 @@ CONFIGS = {
     "notre-dame": {"size": 1024, "plane": Plane(r=(-0.2, 0.2), s=(-0.5, 0.5), height=0.3),
                    "lattice": (32, 80), "path_density": 27.0},
 }
+
+
+SNR_STEP = 8  # SNR_Y against the truth on every 8th pixel row and column (from pixel 4)
+
+
+def truth_subset(cfg: dict, exposure: float) -> np.ndarray:
+    """The simulation's ground-truth luminance LTM at the pixels ``[4::8, 4::8]`` on the
+    config's lattice (the whole truth of the Toys size is 4.8 GB of RGB float32): each light of
+    the lattice rendered as the simulator renders its truth, times its exposure."""
+    plan = plan_simulation(scene="canvas", path_density=cfg["path_density"], seed=0,
+                           size=cfg["size"], lattice=cfg["lattice"], plane=cfg["plane"])
+    lattice = Lattice.from_plane(cfg["plane"], cfg["lattice"])
+    lights = [(r, s, cfg["plane"].height) for r in lattice.centres(0) for s in lattice.centres(1)]
+    sub = slice(SNR_STEP // 2, None, SNR_STEP)
+    frames = [frame[sub, sub] @ LUMA.astype(np.float32)
+              for frame in iter_frames(plan.scene, lights)]
+    return np.stack(frames, axis=-1).reshape(*frames[0].shape, *cfg["lattice"]) * exposure
 
 
 class PeakMemory:
@@ -91,6 +112,8 @@ def main() -> None:
                            progress=True)  # the luminance LTM, as in the paper
         times["reconstruct_s"] = time.perf_counter() - start
     ltm = open_store(work / "store.zarr")["ltm"]
+    sub = slice(SNR_STEP // 2, None, SNR_STEP)
+    snr = snr_db(truth_subset(cfg, sim["exposure"]), ltm[sub, sub].values)
     result = {
         "config": args.config, "command": f"python bench/scale_bench.py --config {args.config}",
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
@@ -99,6 +122,9 @@ def main() -> None:
         "frames": sim["frames"], "sampling_ratio": info["sampling_ratio"],
         "ltm_gb_float32": ltm.nbytes / 1e9, "timings": {**times, **info["timings"]},
         "seconds_per_pixel_solve": info["seconds_per_pixel"],
+        "snr_y_db_pixel_subset": snr, "snr_pixels": f"[{SNR_STEP // 2}::{SNR_STEP}] x 2",
+        "load_average_1min_end": os.getloadavg()[0],
+        "methods_per_tile": info["methods_per_tile"],
         "peak_memory_gib_reconstruct": memory.peak / 2**30,
         "relight_point_light": relight_cost(work / "store.zarr",
                                             random_lights(cfg["plane"].to_json(), 5)),

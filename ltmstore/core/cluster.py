@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 from distributed import Client, LocalCluster
@@ -77,11 +78,42 @@ def _connect(scheduler: str, timeout: float) -> Client:
         raise LtmError(f"--scheduler {scheduler!r} is not a Dask scheduler address ({exc}); "
                        "expected tcp://HOST:PORT, e.g. tcp://127.0.0.1:8786") from None
     try:
+        # Client's own timeout does not bound a peer that accepts the connection and never
+        # answers (a stalled process, another service): it waits forever. Ask first, bounded.
+        kind = _identity(scheduler, timeout)
+        if kind != "Scheduler":
+            raise ValueError(f"a Dask {kind} answered, not a scheduler")
         return Client(scheduler, timeout=timeout)
     except Exception as exc:  # noqa: BLE001 - whatever answers there, it is not a usable scheduler
-        reason = " ".join(str(exc).split()) or type(exc).__name__
+        reason = ("no answer" if isinstance(exc, TimeoutError)
+                  else " ".join(str(exc).split()) or type(exc).__name__)
         raise LtmError(f"cannot reach Dask scheduler {scheduler!r} within {timeout:g} s: "
                        f"{reason}") from None
+
+
+def _identity(address: str, timeout: float) -> str:
+    """The ``type`` the Dask server at ``address`` reports (``"Scheduler"``), within
+    ``timeout`` seconds in all (connection and answer); :class:`TimeoutError` otherwise."""
+    import asyncio
+
+    from distributed.comm import connect
+    from distributed.security import Security
+
+    args = Security().get_connection_args("client")  # TLS from Dask's config, as Client does
+
+    async def ask() -> str:
+        comm = await connect(address, timeout=timeout, **args)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return str((await comm.read()).get("type"))
+        finally:
+            comm.abort()
+
+    async def bounded() -> str:
+        return await asyncio.wait_for(ask(), timeout)
+
+    with ThreadPoolExecutor(1) as pool:  # its own event loop, even inside a running one
+        return pool.submit(asyncio.run, bounded()).result()
 
 
 SMALL_BYTES = 256 * 2**20  # inputs below this run on threads: a process cluster costs seconds

@@ -40,6 +40,9 @@ the residual; ``--method auto`` then prefers another method by held-out error.
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -60,6 +63,7 @@ DAMP_CELLS = 2.0  # the residual's weight falls as exp(-(distance / DAMP_CELLS c
 # noise-free data the residual adds 6 dB, on noisy data the model alone is better by up to 10 dB
 # (it does not interpolate the noise of the observed cells).
 AUTO_GRID = {"residual": (0.0, 0.5, 1.0)}
+COMPILED = True  # near lights through the compiled kernel (False: the NumPy steps, for tests)
 SHARE_EVIDENCE = 0.5  # a pixel that saw less of its highlight's peak takes the tile's roughness
 
 
@@ -104,8 +108,8 @@ class Lights:
 
     def take(self, cells: np.ndarray) -> Lights:
         """The lights of the cells ``cells`` only."""
-        return Lights(self.toward[..., cells], self.half[..., cells], self.g[:, cells],
-                      self.far)
+        return Lights(np.take(self.toward, cells, axis=-1), np.take(self.half, cells, axis=-1),
+                      np.take(self.g, cells, axis=-1), self.far)  # C-contiguous
 
     def rows(self, rows: np.ndarray) -> Lights:
         """The lights as seen from the pixels ``rows`` only."""
@@ -225,10 +229,13 @@ def levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w: np.
     """Minimise each pixel's weighted squared error over ``theta (n, 6)``, all pixels at once
     (one damping factor per pixel, a step kept only where it lowers that pixel's cost).
     Returns the parameters and each pixel's final cost. Far lights
-    (:func:`far_lights`) take the compiled kernel of :mod:`ltmstore.solve.physical_far`, the
+    (:func:`far_lights`) take the compiled kernel of :mod:`ltmstore.solve.physical_far`, near
+    lights that of :mod:`ltmstore.solve.physical_near` (unless :data:`COMPILED` is off): the
     same steps pixel by pixel."""
     if lights.far and len(theta):
         return _far_levenberg_marquardt(theta, lights, y, w, n_iter=n_iter)
+    if COMPILED and len(theta):
+        return _near_levenberg_marquardt(theta, lights, y, w, n_iter=n_iter)
     theta = _clip(theta.copy())
     cost = _cost(theta, lights, y, w)
     lam = np.full(len(theta), 1e-2)
@@ -260,6 +267,19 @@ def _far_levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w
     return out, cost
 
 
+def _near_levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w: np.ndarray,
+                              *, n_iter: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`levenberg_marquardt` at near lights, compiled
+    (:mod:`ltmstore.solve.physical_near`; imported here, as the far kernel)."""
+    from ltmstore.solve import physical_near
+
+    out = np.array(theta, dtype=np.float64, order="C")
+    toward, half, g, y32, w32 = (np.ascontiguousarray(v, dtype=np.float32)
+                                 for v in (lights.toward, lights.half, lights.g, y, w))
+    cost = physical_near.levenberg_marquardt(out, toward, half, g, y32, w32, n_iter)
+    return out, cost
+
+
 def _starts(lights: Lights, y: np.ndarray, w: np.ndarray) -> list[np.ndarray]:
     """Initial parameters: a flat normal with a rough lobe, and the normal that mirrors each
     pixel's brightest observation (relative to its fall-off) into the camera, with a sharp one."""
@@ -277,9 +297,20 @@ def _starts(lights: Lights, y: np.ndarray, w: np.ndarray) -> list[np.ndarray]:
 def _robust_weights(theta, lights, y, observed) -> np.ndarray:
     """Cauchy weights of each observation from its residual over the pixel's robust scale."""
     res = np.where(observed, _model(theta, lights) - y, 0.0)
-    mad = np.nanmedian(np.where(observed, np.abs(res), np.nan), axis=1, keepdims=True)
+    mad = _row_median(np.abs(res), observed)
     scale = ROBUST * 1.4826 * mad + 1e-9 * np.abs(y).max()
     return observed / (1 + (res / scale) ** 2)
+
+
+def _row_median(values: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """Median of each row's ``values`` at ``where`` ``(n, 1)`` (NaN for a row with none): what
+    ``np.nanmedian`` gives with NaN elsewhere, without its loop over rows."""
+    ordered = np.sort(np.where(where, values, np.inf), axis=1)
+    k = where.sum(axis=1)
+    lo, hi = (np.take_along_axis(ordered, np.maximum(i, 0)[:, None], axis=1)
+              for i in ((k - 1) // 2, k // 2))
+    with np.errstate(invalid="ignore"):
+        return np.where(k[:, None] > 0, (lo + hi) / 2, np.nan)
 
 
 def fit_parameters(y: np.ndarray, w: np.ndarray, lights: Lights, *, n_iter: int = N_ITER,
@@ -374,9 +405,13 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     w = observed.astype(np.float32)
     best, w = fit_parameters(y, w, lights, n_iter=n_iter, robust=robust)
     evidence = _evidence(best, lights_all, observed_all)
-    if share:
-        best = _share_roughness(best, evidence, lights, w)
-        evidence = _evidence(best, lights_all, observed_all)
+    if share:  # the evidence again where the roughness changed (row by row: the same values)
+        shared = _share_roughness(best, evidence, lights, w)
+        changed = np.flatnonzero((shared != best).any(axis=1))
+        if changed.size:
+            evidence[changed] = _evidence(shared[changed], lights_all.rows(changed),
+                                          observed_all[changed])
+        best = shared
     normal = unit_normal(best[:, 0], best[:, 1])
     surface = Surface(normal=normal, albedo=best[:, 2], specular=best[:, 3],
                       roughness=np.exp(best[:, 4]), ambient=best[:, 5], evidence=evidence)
@@ -491,11 +526,36 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
                        f"{len(samples)} pixels")
     if not np.isfinite(samples).any(axis=tuple(range(1, samples.ndim))).all():
         raise LtmError("method 'physical' needs at least one observed cell per pixel")
-    surface, model = fit_surface(samples, geometry, led_exponent=led_exponent, n_iter=n_iter,
-                                 share=share)
+    key = _fit_key(samples, geometry, led_exponent, n_iter, share, damp_cells)
+    with _LOCK:  # workers may run tiles on threads
+        cached = _FITS.get(key)
+    surface, model, damped = cached or (*fit_surface(
+        samples, geometry, led_exponent=led_exponent, n_iter=n_iter, share=share), None)
     out = model
     if residual > 0:
-        res = samples.reshape(len(samples), -1) - model
-        out = model + residual * damped_residual(res.reshape(samples.shape), geometry,
-                                                 damp_cells=damp_cells)
+        if damped is None:
+            res = samples.reshape(len(samples), -1) - model
+            damped = damped_residual(res.reshape(samples.shape), geometry, damp_cells=damp_cells)
+        out = model + residual * damped
+    if len(samples) <= CACHED_ROWS:
+        with _LOCK:
+            _FITS[key] = (surface, model, damped)
+            while len(_FITS) > CACHED_FITS:
+                _FITS.popitem(last=False)
     return out.reshape(samples.shape).astype(np.float32), surface
+
+
+# The fit does not depend on the residual's weight: the choice of that weight
+# (ltmstore.solve.select.choose_params, three weights on the same held-out folds of a few dozen
+# pixels) fits each fold once, not once per weight.
+_FITS: OrderedDict = OrderedDict()
+_LOCK = threading.Lock()
+CACHED_FITS = 4  # folds of small batches whose fit a process keeps
+CACHED_ROWS = 512  # ... batches of at most this many pixels (a tile is solved once)
+
+
+def _fit_key(samples: np.ndarray, geometry: Geometry, *params) -> tuple:
+    digest = hashlib.sha1(np.ascontiguousarray(samples).tobytes())
+    for array in (geometry.pixels, geometry.positions()):
+        digest.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest(), samples.shape, str(samples.dtype), geometry.height, params

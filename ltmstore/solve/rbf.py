@@ -18,6 +18,10 @@ terms, or a singular system (e.g. collinear cells), it falls back to nearest nei
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
+from functools import partial
 from math import comb
 from typing import TYPE_CHECKING
 
@@ -65,9 +69,48 @@ def _spacing(points: np.ndarray) -> float:
 def _solve_in(points: np.ndarray, samples: np.ndarray, params: dict) -> np.ndarray:
     if params["epsilon"] is None:
         params = {**params, "epsilon": 1 / _spacing(points)}
-    return solve_by_mask(
-        samples, lambda cells, values: interpolate(points, points[cells], values, **params)
-    )
+    return solve_by_mask(samples, partial(_fit, points, params))
+
+
+def _fit(points: np.ndarray, params: dict, cells: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """The interpolant of ``values (K, g)`` at the observed ``cells`` onto ``points``: through
+    the mask's :func:`operator` (cached: every tile of a handheld capture shares its mask, and
+    each tile re-solved the same ``K x K`` system) where the batch is large enough to pay for
+    building it (``g`` at least ``K / 2``), else solved directly."""
+    if 2 * values.shape[1] >= values.shape[0]:  # by shape alone: the same call, the same path
+        return operator(points, cells, params) @ values.astype(np.float32)
+    return interpolate(points, points[cells], values, **params)
+
+
+_OPERATORS: OrderedDict = OrderedDict()  # key -> operator, the most recent last
+_LOCK = threading.Lock()
+CACHED_OPERATORS = 8  # masks whose operator a process keeps (each M x K float32)
+
+
+def _key(points: np.ndarray, cells: np.ndarray, params: dict) -> tuple:
+    digest = hashlib.sha1(np.ascontiguousarray(points).tobytes())
+    digest.update(np.packbits(cells).tobytes())
+    return digest.hexdigest(), len(cells), tuple(sorted((k, repr(v)) for k, v in params.items()))
+
+
+def operator(points: np.ndarray, cells: np.ndarray, params: dict, *,
+             key: tuple | None = None) -> np.ndarray:
+    """The linear map ``(len(points), K)`` (float32) from values at the observed ``cells``
+    (a boolean mask over ``points``) to their interpolant at ``points`` (:func:`interpolate`
+    of the identity: the interpolant is linear in the values), cached per mask."""
+    key = _key(points, cells, params) if key is None else key
+    with _LOCK:  # workers may run tiles on threads
+        found = _OPERATORS.get(key)
+        if found is not None:
+            _OPERATORS.move_to_end(key)
+            return found
+    k = int(np.count_nonzero(cells))
+    found = interpolate(points, points[cells], np.eye(k), **params).astype(np.float32)
+    with _LOCK:
+        _OPERATORS[key] = found
+        while len(_OPERATORS) > CACHED_OPERATORS:
+            _OPERATORS.popitem(last=False)
+    return found
 
 
 def solve(samples: np.ndarray, geometry: Geometry, *, kernel: str = "thin_plate_spline",

@@ -59,8 +59,9 @@ def auto_grid(method: str) -> dict:
 
 
 def choose_params(samples: np.ndarray, geometry: Geometry, method: str, *, params: dict,
-                  seed: int = 0) -> Choice:
-    """Pick, for this batch, the candidate of ``AUTO_GRID`` with the lowest held-out error.
+                  seed: int = 0, pixels: int = PIXELS) -> Choice:
+    """Pick, for this batch, the candidate of ``AUTO_GRID`` with the lowest held-out error
+    on ``pixels`` of its rows.
 
     Parameters already fixed in ``params`` are never overridden.
     """
@@ -69,7 +70,7 @@ def choose_params(samples: np.ndarray, geometry: Geometry, method: str, *, param
         return Choice(params=dict(params), errors={})
     (name, candidates), = grid.items()
     rng = np.random.default_rng(seed)
-    rows = rng.choice(len(samples), size=min(PIXELS, len(samples)), replace=False)
+    rows = rng.choice(len(samples), size=min(pixels, len(samples)), replace=False)
     errors = {}
     for value in candidates:
         held = heldout_error(samples[rows], geometry.take(rows), method, folds=FOLDS, seed=seed,
@@ -94,29 +95,37 @@ class MethodChoice:
     errors: dict
 
 
-def choose_method(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> MethodChoice:
-    """The entry of :data:`AUTO_METHODS` with the lowest held-out error on a few pixels of the
-    batch (the same held-out cells for every candidate), or a blend of ``cs`` and ``rbf``
+def choose_method(samples: np.ndarray, geometry: Geometry, *, seed: int = 0,
+                  pixels: int = PIXELS, labels: tuple[str, ...] | None = None) -> MethodChoice:
+    """The entry of :data:`AUTO_METHODS` with the lowest held-out error on ``pixels`` rows of
+    the batch (the same held-out cells for every candidate), or a blend of ``cs`` and ``rbf``
     (:data:`BLEND`) where a weight of :data:`BLEND_WEIGHTS` predicts those cells better still;
     the smaller model wins a tie (the blend counts as the largest). Where ``geometry`` carries
     the pixels' positions, :data:`AUTO_PHYSICAL` (the physical reflectance model) is a candidate
     too, and where the cells chose another, the two meet again on large held-out blocks
-    (:func:`_fill_holes`). A 6-D lattice keeps :data:`AUTO_METHODS_6D`."""
+    (:func:`_fill_holes`). A 6-D lattice keeps :data:`AUTO_METHODS_6D`. ``labels``: only these
+    candidates (:func:`finalists` of an earlier choice on a wider sample)."""
     entries = AUTO_METHODS if geometry.ndim == 2 else AUTO_METHODS_6D
     if geometry.ndim == 2 and geometry.pixels is not None:
         entries = AUTO_METHODS + AUTO_PHYSICAL
+    if labels is not None:
+        keep = {*labels, *(("cs", "rbf") if BLEND in labels else ())}
+        entries = tuple(e for e in entries if e[0] in keep)
     if len(entries) == 1:
         (label, method, params), = entries
         return MethodChoice(label=label, method=method, params=dict(params), errors={})
     rng = np.random.default_rng(seed)
-    rows = rng.choice(len(samples), size=min(PIXELS, len(samples)), replace=False)
+    rows = rng.choice(len(samples), size=min(pixels, len(samples)), replace=False)
     picked = samples[rows]
     held = {label: heldout_error(picked, geometry.take(rows), method, folds=FOLDS, seed=seed,
                                  params=params, keep_prediction=label in ("cs", "rbf"))
             for label, method, params in entries}
     errors = {label: h.relative_error for label, h in held.items()}
-    weight, errors[BLEND] = _best_blend(held["cs"], held["rbf"], picked.reshape(len(rows), -1))
-    candidates = [*entries, (BLEND, "blend", {"weight": weight})]
+    candidates = list(entries)
+    if "cs" in held and "rbf" in held and (labels is None or BLEND in labels):
+        weight, errors[BLEND] = _best_blend(held["cs"], held["rbf"],
+                                            picked.reshape(len(rows), -1))
+        candidates.append((BLEND, "blend", {"weight": weight}))
     best = min((e for e in errors.values() if np.isfinite(e)), default=np.inf)
     label, method, params = next(entry for entry in candidates
                                  if not np.isfinite(best) or errors[entry[0]] <= best * (1 + TIE))
@@ -124,6 +133,21 @@ def choose_method(samples: np.ndarray, geometry: Geometry, *, seed: int = 0) -> 
         label, method, params = _fill_holes(picked, geometry.take(rows), (label, method, params),
                                             AUTO_PHYSICAL[0], errors, seed=seed)
     return MethodChoice(label=label, method=method, params=dict(params), errors=errors)
+
+
+def finalists(choice: MethodChoice) -> tuple[str, ...]:
+    """The labels worth trying again on a part of the batch that ``choice`` was made on: the
+    best of the interpolating candidates by held-out cells, and the physical model where it was
+    a candidate (the two that :func:`choose_method` lets meet on held-out blocks)."""
+    physical = AUTO_PHYSICAL[0][0]
+    cells = {k: v for k, v in choice.errors.items()
+             if "@" not in k and k != physical and np.isfinite(v)}
+    if not cells:
+        return (choice.label,)
+    best = min(cells.values())
+    order = [e[0] for e in AUTO_METHODS] + [BLEND]  # smallest model first, as choose_method
+    other = next(label for label in order if label in cells and cells[label] <= best * (1 + TIE))
+    return (other, physical) if physical in choice.errors else (other,)
 
 
 def _fill_holes(samples: np.ndarray, geometry: Geometry, chosen: tuple, physical: tuple,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -38,7 +38,15 @@ from ltmstore.core.dims import (
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import DISK, FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
-from ltmstore.solve.select import AUTO, AUTO_LABELS, Choice, choose_method, choose_params
+from ltmstore.solve.select import (
+    AUTO,
+    AUTO_LABELS,
+    Choice,
+    MethodChoice,
+    choose_method,
+    choose_params,
+    finalists,
+)
 from ltmstore.stages import surface as sf
 from ltmstore.stages.by_light import write_by_light
 from ltmstore.stages.plan import TilePlan, check_fits, plan_tiles, write_method_map
@@ -56,6 +64,9 @@ if TYPE_CHECKING:  # Dask loads where a near-light run needs it: a far-light run
     from distributed import Client
 
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
+# auto chooses once per image (choose_for_image) from this many pixels of this many tiles
+IMAGE_PIXELS = 256
+IMAGE_TILES = 16
 TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at it
 # A lattice given by the user that leaves K/M below this is refused unless forced: the solve
 # grows with M while all but a few cells are guessed (1000 x 1000 on a test capture: K/M 0.0003).
@@ -80,9 +91,11 @@ def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray
 
 def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str, params: dict,
                 geometry: Geometry, auto: bool, extent: dict | None = None,
-                block_info=None) -> np.ndarray:
+                chosen: ImageChoice | None = None, block_info=None) -> np.ndarray:
     """Solve one pixel tile and write its ``ltm`` shard and confidence maps; ``extent`` (the
-    acquisition's ``object``) places the tile's pixels on the object plane.
+    acquisition's ``object``) places the tile's pixels on the object plane; ``chosen``: the
+    finalists of ``auto`` for the whole image (:func:`choose_for_image`), that the tile
+    chooses between (None: ``method`` is ``auto``'s whole choice, or a named method).
 
     Returns ``[[record]]``: seconds, the parameters used and the held-out errors behind them.
     """
@@ -97,12 +110,17 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         geometry = geometry.with_pixels(object_pixels(extent, image, slice(y0, y1),
                                                       slice(x0, x1)))
     label, method_error = method, None
-    if method == AUTO:  # the method and model size first, then its regularisation
-        picked = choose_method(batch, geometry, seed=seed)
-        label, method, params = picked.label, picked.method, {**picked.params}
-        method_error = picked.errors.get(label)
-    choice = (choose_params(batch, geometry, method, params=params, seed=seed)
-              if auto else Choice(params=params, errors={}))
+    if chosen is not None:  # the finalists meet in each tile; its regularisation too
+        label, method, params, method_error = chosen.pick(batch, geometry, seed=seed)
+        choice = (choose_params(batch, geometry, method, params=params, seed=seed)
+                  if auto else Choice(params=params, errors={}))
+    else:
+        if method == AUTO:  # the method and model size first, then its regularisation
+            picked = choose_method(batch, geometry, seed=seed)
+            label, method, params = picked.label, picked.method, {**picked.params}
+            method_error = picked.errors.get(label)
+        choice = (choose_params(batch, geometry, method, params=params, seed=seed)
+                  if auto else Choice(params=params, errors={}))
     tile = samples.shape[:2]
     surface = None
     if method == "physical" and sf.NORMAL in out:  # the surface's maps as well
@@ -126,6 +144,60 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     result = np.empty((1, 1), dtype=object)
     result[0, 0] = record
     return result
+
+
+@dataclass(frozen=True)
+class ImageChoice:
+    """What ``auto`` chose once for a whole image (``method``) and the finalists that each
+    tile chooses between (:func:`~ltmstore.solve.select.finalists`)."""
+
+    method: MethodChoice
+    labels: tuple[str, ...]
+
+    def pick(self, batch: np.ndarray, geometry: Geometry, *,
+             seed: int = 0) -> tuple[str, str, dict, float | None]:
+        """A tile's label, method, fixed parameters and held-out error: the finalist with the
+        lowest held-out error on the tile (:func:`~ltmstore.solve.select.choose_method` among
+        ``labels``)."""
+        picked = self.method
+        if len(self.labels) > 1:
+            picked = choose_method(batch, geometry, seed=seed, labels=self.labels)
+        return picked.label, picked.method, dict(picked.params), picked.errors.get(picked.label)
+
+
+def choose_for_image(samples: zarr.Array, plan: TilePlan, geometry: Geometry,
+                     extent: dict | None, *, seed: int = 0) -> ImageChoice:
+    """``auto``'s candidates (:func:`~ltmstore.solve.select.choose_method`) weighed once for
+    the whole image, on :data:`IMAGE_PIXELS` pixels drawn from up to :data:`IMAGE_TILES`
+    tiles spread over it, down to the finalists that each tile then weighs on its own pixels:
+    the best interpolating method and the physical model. All candidates in every tile cost
+    about a second per tile (the RBF systems, the triangulation), and the tiles chose among
+    the same few (toys-size canvas, icon and relief: ``physical``, ``rbf`` and ``cs+rbf``)."""
+    rng = np.random.default_rng(seed)
+    ty, tx = plan.grid
+    picks = np.unique(np.linspace(0, ty * tx - 1, min(IMAGE_TILES, ty * tx)).round().astype(int))
+    rows, where = [], []
+    per_tile = -(-IMAGE_PIXELS // len(picks))
+    for index in picks:
+        (y0, y1), (x0, x1) = plan_rows(plan, *divmod(int(index), tx))
+        block = np.asarray(samples[y0:y1, x0:x1])
+        flat = block.reshape(-1, *block.shape[2:])
+        take = np.sort(rng.choice(len(flat), size=min(per_tile, len(flat)), replace=False))
+        rows.append(flat[take])
+        if extent is not None:
+            where.append(object_pixels(extent, plan.image, slice(y0, y1), slice(x0, x1))[take])
+    batch = np.concatenate(rows)
+    if extent is not None:
+        geometry = geometry.with_pixels(np.concatenate(where))
+    picked = choose_method(batch, geometry, seed=seed, pixels=len(batch))
+    return ImageChoice(method=picked,
+                       labels=finalists(picked) if picked.errors else (picked.label,))
+
+
+def plan_rows(plan: TilePlan, ty: int, tx: int) -> tuple[tuple[int, int], tuple[int, int]]:
+    """Pixel rows and columns ``((y0, y1), (x0, x1))`` of tile ``(ty, tx)``."""
+    (h, w), (th, tw) = plan.image, plan.tile
+    return (ty * th, min((ty + 1) * th, h)), (tx * tw, min((tx + 1) * tw, w))
 
 
 def _write_surface_tile(out: dict[str, zarr.Array], surface, where: tuple[slice, slice],
@@ -587,11 +659,14 @@ def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TileP
     from distributed import as_completed
 
     marks = _read_marks(out[TILES])
+    todo = marks == ""
+    chosen = None
+    if method == AUTO and todo.any():  # once for the image, not per tile
+        chosen = choose_for_image(samples, plan, geometry, extent)
     tiles = da.from_zarr(samples, chunks=plan.block)
     records = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
-                               geometry=geometry, auto=auto, extent=extent,
+                               geometry=geometry, auto=auto, extent=extent, chosen=chosen,
                                drop_axis=list(range(2, tiles.ndim)), chunks=(1, 1), dtype=object)
-    todo = marks == ""
     futures = client.compute(list(records.to_delayed()[todo]))
     done = [json.loads(str(m)) for m in marks[~todo]]
     with tqdm(total=len(futures), desc="reconstruct tiles", disable=not progress) as bar:

@@ -35,6 +35,7 @@ pixels to sRGB, so the photographs are read once and never copied whole.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict
@@ -96,6 +97,8 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
                      tile: int | None, progress: bool, key: dict) -> dict:
     start = time.perf_counter()
     models = far_models(method)
+    if method in ("auto", "physical"):  # the surface's kernels load beside the classic work
+        threading.Thread(target=_load_kernels, name="numba-warm-up", daemon=True).start()
     valid = np.asarray(group["pose_valid"][:], dtype=bool)
     train = train_directions(group)
     lat = Lattice.from_plane(DISK, lattice or FAR_LATTICE)
@@ -159,7 +162,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
         if method in ("auto", "physical"):
             loo_choice = models[pick(mse.mean(axis=0), models, len(train))]
             classic, surface = _surface(group, valid, train, loo_choice, models, method,
-                                        timings)
+                                        timings, frames)
             if classic != loo_choice:  # held-out lights prefer another classic model
                 chosen = choose_tiles(mse, models, len(train),
                                       common=models.index(classic)).reshape(plan.grid)
@@ -189,7 +192,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
 
 
 def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: Model,
-             models: tuple[Model, ...], method: str, timings: dict
+             models: tuple[Model, ...], method: str, timings: dict, luma: np.ndarray
              ) -> tuple[Model, tuple[np.ndarray, sf.Blend, np.ndarray] | None]:
     """The image's classic model and the surface model (:mod:`ltmstore.stages.surface`).
 
@@ -207,7 +210,7 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     unless chosen); its maps are written to the store.
     """
     start = time.perf_counter()
-    rgb = sf.frames_rgb(group, valid)
+    rgb = sf.frames_rgb(group, valid, luma)  # luma: the valid frames, already read
     flat = rgb.reshape(len(rgb), -1, 3)
     sample = np.sort(np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS])
     exposure, weight = False, 1.0
@@ -238,6 +241,14 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train)
     timings["surface_s"] = time.perf_counter() - start
     return classic, (theta, sf.Blend(smoother, classic, weight), gain)
+
+
+def _load_kernels() -> None:
+    """Numba and the surface fit's compiled kernels (about 1-1.5 s of one core, mostly holding
+    the GIL), loaded while the main thread reads the frames and fits the classic models."""
+    from ltmstore.solve.physical_far import warm_up
+
+    warm_up()
 
 
 def _write_exposure(group: zarr.Group, valid: np.ndarray, gain: np.ndarray) -> None:

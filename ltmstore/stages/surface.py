@@ -152,9 +152,11 @@ class BlendAt:
         return weight * own + (1 - weight) * (self.loo_other @ encoded)
 
 
-def frames_rgb(group: zarr.Group, valid: np.ndarray) -> np.ndarray:
-    """Linear RGB of the valid frames, ``(t, y, x, 3)`` float32."""
-    y = np.asarray(group["frames"][:])[valid]
+def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = None
+               ) -> np.ndarray:
+    """Linear RGB of the valid frames, ``(t, y, x, 3)`` float32; ``luma``: their luminance
+    where it is already read."""
+    y = np.asarray(group["frames"][:])[valid] if luma is None else luma
     cb, cr = (np.asarray(group["frame_chroma"][i])[valid].astype(np.float32) for i in (0, 1))
     return np.stack(rgb_from_ycbcr(y, cb, cr), axis=-1).clip(min=0)
 
@@ -243,15 +245,17 @@ def cross_validated(rgb: np.ndarray, train: np.ndarray, classic: Model, *,
     held-out photographs are scored as they are."""
     encoded = linear_to_srgb((rgb @ LUMA).astype(np.float32))
     others = [m for m in classics if m != classic]
-    errors: dict[tuple[bool, float] | str | None, float] = {}
 
-    def add(key, predicted, truth):
-        errors[key] = errors.get(key, 0.0) + float(np.sum((predicted - truth) ** 2))
+    def fold_errors(fold: int) -> dict:
+        errors: dict[tuple[bool, float] | str | None, float] = {}
 
-    for fold in range(folds):
+        def add(key, predicted, truth):
+            errors[key] = float(np.sum((predicted - truth) ** 2))
+
         test = np.arange(fold, len(train), folds)
         fit = np.setdiff1d(np.arange(len(train)), test)
-        add(None, classic.weights(train[fit], train[test]) @ encoded[fit], encoded[test])
+        theirs_weights = classic.weights(train[fit], train[test])
+        add(None, theirs_weights @ encoded[fit], encoded[test])
         for model in others:
             add(model.name, model.weights(train[fit], train[test]) @ encoded[fit], encoded[test])
         x = rgb[fit]
@@ -262,9 +266,19 @@ def cross_validated(rgb: np.ndarray, train: np.ndarray, classic: Model, *,
                 surface = fitted(x, train[fit])
             seen, theta, smoother = surface
             ours = relit(seen, theta, train[fit], train[test], smoother)
-            theirs = classic.weights(train[fit], train[test]) @ seen
+            theirs = theirs_weights @ seen
             for weight in WEIGHTS:
                 add((exposure, weight), weight * ours + (1 - weight) * theirs, encoded[test])
+        return errors
+
+    # the folds are independent: two at a time (the surface fits release the GIL); summed in
+    # fold order, as one loop would
+    with ThreadPoolExecutor(max_workers=min(2, folds)) as pool:
+        per_fold = list(pool.map(fold_errors, range(folds)))
+    errors: dict[tuple[bool, float] | str | None, float] = {}
+    for part in per_fold:
+        for key, error in part.items():
+            errors[key] = errors.get(key, 0.0) + error
     return {key: error / encoded.size for key, error in errors.items()}
 
 

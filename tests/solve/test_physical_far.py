@@ -49,3 +49,13 @@ def test_the_kernel_keeps_the_models_bounds():
     assert (theta[:, :2] == [3, -3]).all() and (theta[:, [2, 3, 4, 5]] == 0).all()
     assert np.isfinite(cost).all()
 
+
+
+def test_the_warm_up_loads_the_signature_the_fits_use():
+    """``warm_up`` (run on a thread by a far-light reconstruct) must dispatch the very signature
+    of :func:`ltmstore.solve.physical.fit_parameters`' calls (read-only light rows): a second
+    one would be compiled (about 5 s) in the middle of the first fit of every new machine."""
+    physical_far.warm_up()
+    directions, y, _ = far_pixels(10)
+    physical.fit_parameters(y, np.ones_like(y), physical.far_lights(directions, len(y)))
+    assert len(physical_far.levenberg_marquardt.signatures) == 1

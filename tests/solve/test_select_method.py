@@ -59,3 +59,22 @@ def test_blend_ends_are_its_two_methods():
                                       get_method(method)(samples, geometry))
     with pytest.raises(LtmError, match="blend weight 1.5"):
         get_method("blend")(samples, geometry, weight=1.5)
+
+
+def test_the_finalists_are_the_best_interpolator_and_the_tile_chooses_among_them_only():
+    """``ltm reconstruct`` weighs every candidate once per image, then each tile only the
+    finalists (:func:`ltmstore.solve.select.finalists`): on a PTM scene without pixel
+    positions, PTM alone; a blend brings its two methods along."""
+    from ltmstore.solve.select import MethodChoice, finalists
+
+    samples, geometry = batch(lambda g, c: c @ ptm_basis(g.directions()).T + 5)
+    image = choose_method(samples, geometry, seed=1)
+    assert finalists(image) == ("ptm",)
+    tile = choose_method(samples[:12], geometry, seed=3, labels=("hsh2", "hsh3"))
+    assert set(tile.errors) == {"hsh2", "hsh3"}, tile.errors
+    assert tile.label == min(tile.errors, key=tile.errors.get)  # hsh3 here: 7e-4 against 2e-3
+    mixed = MethodChoice("physical", "physical", {}, {"ptm": 0.3, "rbf": 0.1, BLEND: 0.1005,
+                                                      "physical": 0.05})
+    assert finalists(mixed) == ("rbf", "physical")  # the smaller within a tie, as auto
+    tile = choose_method(samples[:12], geometry, seed=3, labels=(BLEND,))
+    assert set(tile.errors) == {"cs", "rbf", BLEND}, tile.errors

@@ -1,0 +1,74 @@
+"""``ltm reconstruct --scheduler`` on a cluster started as a user starts one (`dask scheduler` and
+`dask worker` processes), and one ``ltm: error:`` line, exit 2, for an address that does not
+answer (issue 25, item 5)."""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import time
+
+import numpy as np
+import pytest
+from pipeline_helpers import dask_processes, only_error_line, run_ltm
+
+from ltmstore.core.cluster import SCHEDULER_TIMEOUT_S, dask_client
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_store
+
+
+def test_reconstruct_runs_its_tiles_on_the_named_scheduler(small_store, tmp_path):
+    from distributed import Client
+
+    store = shutil.copytree(small_store, tmp_path / "store.zarr")
+    with dask_processes(1) as address:
+        proc = run_ltm("reconstruct", store, "--lattice", "16x16", "--overwrite",
+                       "--scheduler", address)
+        with Client(address, timeout=30) as client:  # what ran there: the solver's tiles
+            prefixes = client.run_on_scheduler(lambda dask_scheduler: sorted(
+                dask_scheduler.task_prefixes))
+    assert proc.returncode == 0, proc.stderr
+    assert "solve_tile" in prefixes, prefixes
+    expected = open_store(small_store)["ltm"].values  # the session's LocalCluster, same input
+    np.testing.assert_allclose(open_store(store)["ltm"].values, expected, rtol=1e-5, atol=1e-7)
+
+
+@pytest.fixture
+def silent_address():
+    """An address whose listener never accepts: connections complete in the kernel and nothing
+    ever answers (a stalled process). ``Client(address, timeout=...)`` waited there forever."""
+    with socket.socket() as mute:
+        mute.bind(("127.0.0.1", 0))
+        mute.listen(0)
+        yield f"tcp://127.0.0.1:{mute.getsockname()[1]}"
+
+
+def test_a_silent_scheduler_fails_within_the_timeout(silent_address):
+    start = time.perf_counter()
+    with pytest.raises(LtmError, match=f"cannot reach Dask scheduler '{silent_address}' "
+                                       "within 1 s: no answer"):
+        with dask_client(silent_address, timeout=1):
+            pass
+    assert time.perf_counter() - start < 10  # measured 1.0 s
+
+
+def test_reconstruct_at_a_silent_scheduler_fails_in_one_line(small_store, tmp_path,
+                                                              silent_address):
+    """Exit 2 and one line naming the address, within the connect timeout; nothing written."""
+    store = shutil.copytree(small_store, tmp_path / "store.zarr")
+    before = open_store(store)["ltm"].values
+    proc = run_ltm("reconstruct", store, "--lattice", "16x16", "--overwrite",
+                   "--scheduler", silent_address, timeout=120)
+    only_error_line(proc, repr(silent_address), "cannot reach Dask scheduler", "no answer")
+    assert proc.seconds < SCHEDULER_TIMEOUT_S + 30, proc.seconds  # measured 12.3 s at load 10
+    np.testing.assert_array_equal(open_store(store)["ltm"].values, before)
+    assert [p.name for p in tmp_path.iterdir()] == ["store.zarr"]  # no revision copy left
+
+
+def test_a_worker_address_is_not_taken_for_a_scheduler(dask_cluster):
+    worker = next(iter(dask_cluster.scheduler_info["workers"]))
+    with pytest.raises(LtmError, match="a Dask Worker answered, not a scheduler"):
+        with dask_client(worker, timeout=5):
+            pass
+    with dask_client(dask_cluster.scheduler_address, timeout=5) as client:  # the scheduler is
+        assert client.scheduler_info()["workers"]
