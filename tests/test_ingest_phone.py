@@ -210,6 +210,10 @@ def test_reconstruction_of_a_drifting_capture_with_room_light(long_capture, tmp_
     (list(0.15 + 0.8 * ((np.arange(120) * 7) % 60) / 59), None),  # no steady dark start
     ([0.2] * 120, None),  # never dark
     ([0.05] * 2 + [0.3] * 100, None),  # too short to be a lead
+    # the light moving from the plane's dark edge onto the painting: a gradual rise, no torch
+    # step (the simulated 400 px canvas's first frames: once taken for a lead, its 70 % of the
+    # lit level subtracted as room light, SNR_Y 3.8 dB)
+    (list(0.068 + 0.059 * np.clip(np.arange(120) / 45, 0, 1)), None),
 ])
 def test_lead_is_found_from_the_brightness_alone(series, step):
     from ltmstore.capture.lead import find_lead

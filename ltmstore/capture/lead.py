@@ -17,7 +17,9 @@ MAX_LEAD_S = 10.0  # a lead is searched for in the first seconds of the video on
 # Lead frames are below this fraction of the lit frames' median brightness. A camera B whose
 # auto exposure is on compresses the step (the simulated one: lit frames 1.9 times the lead).
 DARK_FRACTION = 0.67
-STEP_RATIO = 1.5  # the torch coming on: the first frame this much brighter than the start
+STEP_RATIO = 1.5  # the torch coming on: the first frame this much brighter than the start ...
+STEP_FRAMES = 2  # ... and, within this many frames, than the lead's last frames: a torch comes
+# on at once, a light moving onto the painting from the plane's dark edge brightens gradually
 MIN_LEAD_FRAMES = 3
 STEP_MARGIN_S = 0.1  # frames this close to the step are neither ambient nor samples
 HEAD_FRAMES = 3  # the first frames, whose median is the dark level
@@ -72,8 +74,9 @@ def find_lead(brightness: np.ndarray, fps: float) -> Lead | None:
     -------
     Lead or None
         None unless the video starts with at least :data:`MIN_LEAD_FRAMES` frames of steady
-        brightness (brightest over darkest at most :data:`MAX_LEAD_RATIO`) that then steps up to
-        a median brightness more than ``1 / DARK_FRACTION`` times higher.
+        brightness (brightest over darkest at most :data:`MAX_LEAD_RATIO`) that then step up,
+        within :data:`STEP_FRAMES` frames, to :data:`STEP_RATIO` times the lead's last frames,
+        and to a median brightness more than ``1 / DARK_FRACTION`` times higher.
     """
     b = np.asarray(brightness, dtype=np.float64)
     window = min(len(b), int(math.ceil(MAX_LEAD_S * fps)))
@@ -88,6 +91,9 @@ def find_lead(brightness: np.ndarray, fps: float) -> Lead | None:
     if step < MIN_LEAD_FRAMES or step + margin >= len(b) \
             or lead.max() > MAX_LEAD_RATIO * lead.min() + DARK_NOISE * scale:
         return None
+    if b[step:step + STEP_FRAMES].max() <= STEP_RATIO * float(np.median(lead[-HEAD_FRAMES:])) \
+            + DARK_NOISE * scale:
+        return None  # a gradual rise, not a step
     lit = float(np.median(b[step + margin:]))
     if not dark < DARK_FRACTION * lit:
         return None
