@@ -84,7 +84,12 @@ def test_external_scheduler_gives_the_same_ltm(flow_run, tmp_path):
     assert proc.returncode == 0, proc.stderr
     a = open_store(flow_run[0])["ltm"].values
     b = open_store(store)["ltm"].values
-    np.testing.assert_array_equal(a, b)
+    # Not bitwise: threads in one process (the flow's local cluster) and single-threaded
+    # worker processes round float32 BLAS sums differently, which can tip a near-tie of the
+    # per-tile choice. Measured under load on a clean clone: 81 % of values off by up to
+    # 2.8e-4 (4e-3 relative); idle, equal. A lost or misplaced tile costs tens of dB.
+    assert np.array_equal(np.isnan(a), np.isnan(b))
+    assert snr_db(a, b) > 40.0
 
 
 def test_reconstruct_refuses_to_overwrite_and_keeps_the_store(flow_run):
