@@ -165,7 +165,7 @@ def test_shown_coverage_is_what_reconstruct_counts(captured, reconstructed):
     if "a fixed exposure cannot explain" in steps["ingest"].stderr:
         # Chromium's fake camera plays its file on a timer that stalls on a loaded machine: its
         # frames then no longer follow the light path, and ingest rightly refuses them (misfit
-        # 1.7-3.9 % under load in CI and here; idle, 0.3 %). Not a pass: reported as xfail.
+        # 1.7-3.9 % under load in CI and here; idle it passed every run). Not a pass: an xfail.
         pytest.xfail("camera B's fake camera stalled under load: " + steps["ingest"].stderr)
     for name, proc in steps.items():
         assert proc.returncode == 0, (name, proc.stderr[-2000:])
