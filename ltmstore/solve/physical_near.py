@@ -19,10 +19,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# reassociation and contraction only: NaN and infinity keep their meaning in comparisons
-FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
-LOG_ALPHA = (float(np.log(0.02)), 0.0)  # physical.ALPHA_RANGE, as the bounds of log alpha
-SLOPE_MAX = 3.0  # physical.SLOPE_MAX
+from ltmstore.solve.physical_far import (  # one pixel's 6 x 6 step and bounds, shared
+    FASTMATH,
+    LOG_ALPHA,
+    SLOPE_MAX,
+    _clip,
+    _solve,
+)
+
+__all__ = ["LOG_ALPHA", "SLOPE_MAX", "levenberg_marquardt"]  # the bounds _clip keeps, and the fit
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
@@ -125,43 +130,6 @@ def _system(theta, toward, half, g, y, w, i, jtj, grad):  # pragma: no cover - c
     jtj[5, 3] = jtj[3, 5] = s53
     jtj[5, 4] = jtj[4, 5] = s54
     grad[0], grad[1], grad[2], grad[3], grad[4], grad[5] = g0, g1, g2, g3, g4, g5
-
-
-@njit(cache=True)
-def _solve(a, b, out):  # pragma: no cover - compiled
-    """``out = a^-1 b`` for one ``(6, 6)`` system: Gaussian elimination, partial pivoting
-    (``a`` and ``b`` are overwritten). A zero pivot gives NaN, a step no pixel keeps."""
-    n = len(b)
-    for col in range(n):
-        pivot = col
-        for row in range(col + 1, n):
-            if abs(a[row, col]) > abs(a[pivot, col]):
-                pivot = row
-        if pivot != col:
-            for j in range(n):
-                a[col, j], a[pivot, j] = a[pivot, j], a[col, j]
-            b[col], b[pivot] = b[pivot], b[col]
-        for row in range(col + 1, n):
-            factor = a[row, col] / a[col, col]
-            for j in range(col, n):
-                a[row, j] -= factor * a[col, j]
-            b[row] -= factor * b[col]
-    for row in range(n - 1, -1, -1):
-        total = b[row]
-        for j in range(row + 1, n):
-            total -= a[row, j] * out[j]
-        out[row] = total / a[row, row]
-
-
-@njit(cache=True)
-def _clip(theta):  # pragma: no cover - compiled
-    """:func:`ltmstore.solve.physical._clip` of one pixel's parameters, in place."""
-    for i in range(2):
-        theta[i] = min(max(theta[i], -SLOPE_MAX), SLOPE_MAX)
-    theta[2] = max(theta[2], 0.0)
-    theta[3] = max(theta[3], 0.0)
-    theta[4] = min(max(theta[4], LOG_ALPHA[0]), LOG_ALPHA[1])
-    theta[5] = max(theta[5], 0.0)
 
 
 @njit(cache=True, nogil=True)
