@@ -2,7 +2,7 @@
 the fit alone, beside the C++ Relight fitter when one is installed.
 
 Run: ``python bench/rti_speed.py [--data ../shared/data] [--out bench/results] [--repeats 3]
-[--relight-cli PATH] [--before OLD.json]``.
+[--relight-cli PATH] [--before OLD.json] [--old TREE]``.
 
 For each real capture of ``--data`` (icon, coin, loewenkopf) and a 0.22 MP, 47-light capture
 (the peer's benchmark size: the SynthRTI scene ``multi-obj1-material1``'s first 47 dome
@@ -23,7 +23,10 @@ repository), the median of ``--repeats`` runs of:
 
 The machine is shared: the load average is recorded before and after each capture, beside the
 numbers (medians, no CPU pinning). Writes ``rti_speed.json`` and ``rti_speed.png`` to ``--out``;
-``--before`` draws an earlier run's JSON beside this one.
+``--before`` draws an earlier run's JSON beside this one. ``--old TREE`` (a copy of an earlier
+commit, e.g. ``git archive HEAD | tar -x -C TREE``) also runs the two commands of that code
+(``PYTHONPATH=TREE``) in every repeat, right after this code's, as ``old_*`` keys: old and new
+under the same load.
 """
 
 from __future__ import annotations
@@ -67,11 +70,11 @@ def ltm_command() -> list[str]:
     return [sys.executable, "-c", "import sys; from ltmstore.cli import main; sys.exit(main())"]
 
 
-def run(command: list[str]) -> tuple[float, float]:
+def run(command: list[str], env: dict | None = None) -> tuple[float, float]:
     """Wall and CPU seconds (user + system of the child and its threads) of ``command``."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    subprocess.run(command, check=True, capture_output=True)
+    subprocess.run(command, check=True, capture_output=True, env=env)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -119,7 +122,7 @@ def relight_input(lp: Path, tmp: Path) -> Path:
 
 
 def speed(lp: Path, tmp: Path, repeats: int, relight_cli: str | None,
-          bases: list[str]) -> dict:
+          bases: list[str], old: Path | None = None) -> dict:
     """Medians over ``repeats`` of the whole commands, the library calls and the fit."""
     ltm = ltm_command()
     store = tmp / "speed.zarr"
@@ -139,6 +142,16 @@ def speed(lp: Path, tmp: Path, repeats: int, relight_cli: str | None,
         add("reconstruct_s", wall)
         add("reconstruct_cpu_s", cpu)
         add("both_s", rows["ingest_rti_s"][-1] + wall)
+        if old is not None:  # the earlier code, the same commands, right after
+            env = {**os.environ, "PYTHONPATH": str(old)}
+            old_store = tmp / "speed-old.zarr"
+            wall, cpu = run([*ltm, "ingest-rti", str(lp), str(old_store), "--overwrite"], env)
+            add("old_ingest_rti_s", wall)
+            add("old_ingest_rti_cpu_s", cpu)
+            wall, cpu = run([*ltm, "reconstruct", str(old_store)], env)
+            add("old_reconstruct_s", wall)
+            add("old_reconstruct_cpu_s", cpu)
+            add("old_both_s", rows["old_ingest_rti_s"][-1] + wall)
         start = time.perf_counter()
         ingest_rti(lp, store, overwrite=True, progress=False)
         add("ingest_call_s", time.perf_counter() - start)
@@ -226,6 +239,8 @@ def main() -> None:
     parser.add_argument("--relight-bases", default="rbf,hsh,ptm")
     parser.add_argument("--before", type=Path, help="an earlier rti_speed.json to draw beside")
     parser.add_argument("--only", help="comma-separated capture names (default: all)")
+    parser.add_argument("--old", type=Path,
+                        help="a tree of earlier code to run beside (PYTHONPATH=OLD)")
     args = parser.parse_args()
     relight_cli = args.relight_cli if args.relight_cli and Path(args.relight_cli).exists() \
         else None
@@ -245,7 +260,7 @@ def main() -> None:
         if args.only:
             lps = {k: v for k, v in lps.items() if k in args.only.split(",")}
         for name, lp in lps.items():
-            row = speed(lp, tmp, args.repeats, relight_cli, bases)
+            row = speed(lp, tmp, args.repeats, relight_cli, bases, args.old)
             result["captures"][name] = row
             print(f"{name:>20s} {row['pixels'] / 1e6:.2f} MP {row['lights']:3d} lights: "
                   f"ingest-rti {row['ingest_rti_s']:.2f} s + reconstruct "
@@ -253,6 +268,14 @@ def main() -> None:
                   f"(CPU {row['ingest_rti_cpu_s']:.2f} + {row['reconstruct_cpu_s']:.2f} s); "
                   f"fit {row['fit_s']:.2f} s; load {row['load_before']} -> "
                   f"{row['load_after']}", flush=True)
+            if args.old:
+                print(f"{'old code':>20s}: ingest-rti {row['old_ingest_rti_s']:.2f} s + "
+                      f"reconstruct {row['old_reconstruct_s']:.2f} s = {row['old_both_s']:.2f} "
+                      f"s (CPU {row['old_ingest_rti_cpu_s']:.2f} + "
+                      f"{row['old_reconstruct_cpu_s']:.2f} s)", flush=True)
+            print(f"{'relight-cli':>20s}: " + ", ".join(
+                f"{b} {row[f'relight_cli_{b}_s']:.2f} s" for b in bases
+                if f"relight_cli_{b}_s" in row), flush=True)
     result["load_end"] = load()
     print(f"ltm --help: {result['help']['wall_s']:.2f} s wall, {result['help']['cpu_s']:.2f} s "
           "CPU")

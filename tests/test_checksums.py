@@ -91,6 +91,7 @@ def test_broken_metadata_is_one_line(store, capsys):
 def test_a_store_without_checksums_opens_with_a_note(small_acquisition, tmp_path,
                                                       monkeypatch, capsys):
     monkeypatch.setattr(checksum, "COMPRESSORS", (checksum.ZstdCodec(level=0),))
+    monkeypatch.setattr(checksum, "FAST_COMPRESSORS", (checksum.ZstdCodec(level=0),))
     monkeypatch.setattr(checksum, "ARRAY_CONFIG", {})
     old = tmp_path / "old.zarr"
     ingest(small_acquisition, old, progress=False)

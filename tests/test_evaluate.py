@@ -156,6 +156,25 @@ def test_heldout_error_takes_a_callable_and_rises_with_noise():
     assert errors[0] < errors[1] < errors[2], errors
 
 
+def test_heldout_error_gives_each_fold_its_rows_of_the_per_pixel_arguments():
+    """A pixel with one observed cell hides none: the fold fits the other rows, and the method
+    gets exactly their rows of ``per_pixel`` (physical's warm ``start``)."""
+    truth = smooth_ltfs(6)
+    samples = np.where(random_mask(0.4, seed=7), truth, np.nan)
+    samples[0] = np.nan
+    samples[0, 3, 4] = truth[0, 3, 4]
+    seen = []
+
+    def method(batch, geometry, *, tag):
+        seen.append(tag.copy())
+        return truth[tag]
+
+    result = heldout_error(samples, GEOMETRY, method, folds=1, fraction=0.2,
+                           per_pixel={"tag": np.arange(6)})
+    assert [list(t) for t in seen] == [[1, 2, 3, 4, 5]]
+    assert result.count[0] == 0 and result.relative_error == 0
+
+
 def test_heldout_store_reads_a_pixel_subset(small_store):
     out = heldout_store(small_store, method="cs", folds=3, max_pixels=300, seed=1)
     assert out["pixels"] == 300 and out["M"] == 256 and out["shared_mask"]

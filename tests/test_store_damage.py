@@ -114,8 +114,8 @@ CASES = {  # kind, damage -> what ltm check names
     "r deleted": ("near", remove("r", "the coordinate of dimension r")),
     "chroma deleted": ("near", remove("chroma", "the ingest stage wrote it")),
     "ltm_cb deleted": ("colour", remove("ltm_cb", "the reconstruct stage wrote it")),
-    "crc32c removed (near)": ("near", edit_metadata("frames", without_crc,
-                                                     "frames/zarr.json: codecs bytes, zstd")),
+    "crc32c removed (near)": ("near", edit_metadata("samples", without_crc,
+                                                     "samples/zarr.json: codecs bytes, zstd")),
     "ltm data type changed": ("near", edit_metadata(
         "ltm_by_light", lambda m: m.update(data_type="float64"),
         "ltm_by_light/zarr.json: data type float64, expected float32 or float16")),
@@ -123,7 +123,7 @@ CASES = {  # kind, damage -> what ltm check names
     "normal deleted (far)": ("far", remove("normal", "the reconstruct stage wrote it")),
     "exposure deleted (far)": ("far", remove("exposure", "the reconstruct stage wrote it")),
     "crc32c removed (far)": ("far", edit_metadata("frames", without_crc,
-                                                   "frames/zarr.json: codecs bytes, zstd")),
+                                                   "frames/zarr.json: codecs bytes, blosc")),
     "frames data type changed (far)": ("far", edit_metadata(
         "frames", lambda m: m.update(data_type="int32"),
         "frames/zarr.json cannot be read (TypeError)")),

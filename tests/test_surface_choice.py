@@ -153,3 +153,60 @@ def test_a_flickering_capture_is_fitted_at_its_mean_exposure(tmp_path, capsys, f
         # measured 0.0016 (0.0012 while three of its pixels were left too bright, which the
         # residual's smoother then interpolated at these, the photographed, lights)
         assert errors["auto"] < 0.0019, errors
+
+
+def test_the_luminance_model_is_rendered_once_and_equals_the_three_channels():
+    """``model_encoded`` without colour renders the luminance's parameters once (far lights,
+    channels sharing normal and roughness): the same values as the three channels' luminance,
+    to float32 rounding (measured 1.2e-7 on the coin)."""
+    from ltmstore.core.dims import LUMA
+
+    theta, directions = surface(301), dome()  # 301: not a multiple of 3
+    lights = physical.far_lights(directions, len(theta))
+    three = physical.render_colour(theta, lights) @ LUMA
+    expected = linear_to_srgb(three.T.clip(min=0).astype(np.float32))
+    got = sf.model_encoded(theta, directions, color=False)
+    assert got.shape == expected.shape == (len(directions), len(theta))
+    assert np.abs(got - expected).max() < 1e-5
+    theta[:, 1, 4] += 0.1  # channels of different roughness: rendered channel by channel
+    three = physical.render_colour(theta, lights) @ LUMA
+    expected = linear_to_srgb(three.T.clip(min=0).astype(np.float32))
+    assert np.abs(sf.model_encoded(theta, directions, color=False) - expected).max() < 1e-5
+
+
+def test_leave_one_out_choice_by_gram_matrix_equals_the_residuals():
+    """``lightfit.choose``'s MSE through the Gram matrix equals the mean squared leave-one-out
+    residuals (relative 2e-14 measured)."""
+    from ltmstore.solve.lightfit import choose, loo_operator, rbf_models
+
+    directions = dome()
+    values = rendered(surface(200), directions)[..., 1]  # (lights, pixels)
+    model, mse = choose(values, directions, rbf_models())
+    direct = [np.mean((loo_operator(m.hat(directions)) @ values.astype(np.float64)) ** 2)
+              for m in rbf_models()]
+    np.testing.assert_allclose(list(mse.values()), direct, rtol=1e-9)
+    assert model.name == min(mse, key=mse.get) or mse[model.name] <= min(mse.values()) * 1.01
+
+
+def test_frames_are_read_as_float32_rgb_and_written_with_fast_checksummed_codecs(tmp_path):
+    """A classic capture's frames: Blosc LZ4 with a CRC32C (fast to write and read), and
+    ``frames_rgb`` gives float32 (the float64 image took 4x the memory and time), equal to the
+    float64 conversion rounded."""
+    from ltmstore.core.checksum import has_checksums
+    from ltmstore.core.dims import rgb_from_ycbcr
+    from ltmstore.core.store import open_group
+
+    lp = write_capture(tmp_path / "capture", np.ones(len(dome())))
+    store = tmp_path / "c.zarr"
+    ingest_rti(lp, store, progress=False)
+    group = open_group(store)
+    for name in ("frames", "frame_chroma"):
+        codecs = [c.to_dict()["name"] for c in group[name].metadata.codecs]
+        assert codecs[-2:] == ["blosc", "crc32c"] and has_checksums(group[name])
+    valid = np.asarray(group["pose_valid"][:], dtype=bool)
+    rgb = sf.frames_rgb(group, valid)
+    assert rgb.dtype == np.float32
+    y = np.asarray(group["frames"][:])[valid]
+    cb, cr = (np.asarray(group["frame_chroma"][i])[valid].astype(np.float32) for i in (0, 1))
+    exact = np.stack(rgb_from_ycbcr(y, cb, cr), axis=-1).clip(min=0)
+    np.testing.assert_array_equal(rgb, exact.astype(np.float32))

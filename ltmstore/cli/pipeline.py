@@ -159,6 +159,15 @@ def register(sub) -> None:
     p.add_argument("store")
     p.add_argument("--precision", choices=("float32", "float16"), default="float32",
                    help="stored LTM precision (default: %(default)s, lossless)")
+    p.add_argument("--form", choices=("dense", "factored"), default="dense",
+                   help="dense: the LTM array; factored: per 32 x 32 pixel tile a basis over "
+                   "the lattice cells and per-pixel weights, at the least rank that keeps "
+                   "--target-snr in every tile (lossy, much smaller; its SNR against the dense "
+                   "float32 LTM is measured and printed; relights from the factors) "
+                   "(default: %(default)s)")
+    p.add_argument("--target-snr", type=number, default=50.0, metavar="DB",
+                   help="factored form: least SNR in dB of every pixel tile against the dense "
+                   "LTM (default: %(default)s)")
     p.add_argument("--keep-frames", action="store_true", help="keep frames and frame_chroma")
     p.set_defaults(func=cmd_compact)
 
@@ -355,10 +364,14 @@ def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool) -> lis
 def cmd_compact(a: argparse.Namespace) -> None:
     from ltmstore.stages.compact import compact
 
-    info = compact(a.store, precision=a.precision, keep_frames=a.keep_frames)
+    info = compact(a.store, precision=a.precision, keep_frames=a.keep_frames, form=a.form,
+                   target_db=a.target_snr)
     mb = 1e6
-    what = [f"ltm {info['precision']}" + (f" (SNR {info['snr_db']:.1f} dB against float32)"
-                                          if info["snr_db"] is not None else " (lossless)"),
+    form = (f" factored (ranks {info['ranks']['ltm']['min']}-{info['ranks']['ltm']['max']} per "
+            f"{info['tile']} x {info['tile']} tile, {info['factor_bytes'] / 1e6:.1f} MB in place "
+            f"of {info['dense_bytes'] / 1e6:.1f} MB)" if a.form == "factored" else "")
+    what = [f"ltm{form} {info['precision']}" + (f" (SNR {info['snr_db']:.1f} dB against float32)"
+                                                if info["snr_db"] is not None else " (lossless)"),
             "frames dropped" if info["frames_dropped"] else
             f"frames kept{': ' + info['frames_kept_reason'] if info['frames_kept_reason'] else ''}"]
     print(f"{a.store}: {info['bytes_before'] / mb:.1f} MB -> {info['bytes_after'] / mb:.1f} MB; "

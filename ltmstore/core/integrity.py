@@ -62,6 +62,10 @@ def _layout() -> dict[str, tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]]:
                                                 "ltm_cb_by_light", "ltm_cr_by_light")},
         **{k: ((pixels, (*pixels, "color")), (F32,)) for k in ("albedo", "specular", "ambient")},
         "expected_error": ((pixels,), (F32,)),
+        **{f"{k}_weights": (((*pixels, "rank" + k[3:]),), (F32, F16))
+           for k in ("ltm", "ltm_cb", "ltm_cr")},  # ltm compact --form factored
+        **{f"{k}_basis": ((("factor_tile_y", "factor_tile_x", "rank" + k[3:], *lat),), (F32, F16))
+           for k in ("ltm", "ltm_cb", "ltm_cr") for lat in LATTICES[:1]},
         **{k: (((k,),), (F64,)) for k in ("t", "r", "s", "p", "q")},
         **{k: (((k,),), ("int64",)) for k in ("y", "x")},
         **{k: (((k,),), ("string",)) for k in ("channel", "color", "component")},
@@ -269,7 +273,12 @@ def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
                                              *(f"samples_{c}" for c in colour)]})
     if reconstruct:
         maps = ["expected_error", "unsupported", "method_map"] if "method" in reconstruct else []
-        need.update({n: "reconstruct" for n in ["ltm", *maps, *(f"ltm_{c}" for c in colour)]})
+        ltms = ["ltm", *(f"ltm_{c}" for c in colour)]
+        if done("compact").get("form") == "factored" and "ltm" not in metas:
+            ltms = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis")]
+            need.update({n: "compact" for n in ltms})
+        need.update({n: "reconstruct" for n in [*ltms, *maps]
+                     if n not in need})
         if reconstruct.get("exposure_fitted"):
             need["exposure"] = "reconstruct"
         if _has_surface(reconstruct, acquisition, metas.get("method_map"), far):

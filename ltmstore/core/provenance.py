@@ -114,7 +114,9 @@ def summary(attrs: dict) -> dict:
                                               "dropped_frames") if k in ingest},
                    **({"stored": False, "removed_by": "ltm compact"}
                       if compact.get("frames_dropped") else {})},
-        **({"compact": {k: compact[k] for k in ("precision", "snr_db", "frames_dropped",
+        **({"compact": {k: compact[k] for k in ("precision", "form", "snr_db", "target_db",
+                                                "tile", "ranks", "factor_bytes",
+                                                "dense_bytes", "frames_dropped",
                                                 "bytes_before", "finished") if k in compact}}
            if compact else {}),
         "timings": timings,

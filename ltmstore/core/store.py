@@ -23,7 +23,7 @@ import zarr
 from zarr.abc.store import Store
 from zarr.storage import WrapperStore
 
-from ltmstore.core import checksum, integrity
+from ltmstore.core import checksum, factored, integrity
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lock import locked
 from ltmstore.core.provenance import software, summary
@@ -44,7 +44,10 @@ STAGE_VARIABLES = {
                     "ltm_tiles_done", "ltm_cb_tiles_done", "ltm_cr_tiles_done",
                     "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light",
                     # a far-light store's surface model (ltmstore.stages.surface)
-                    "normal", "albedo", "specular", "roughness", "ambient", "exposure"),
+                    "normal", "albedo", "specular", "roughness", "ambient", "exposure",
+                    # the factored form `ltm compact --form factored` leaves (core.factored)
+                    *(f"{n}{part}" for n in ("ltm", "ltm_cb", "ltm_cr")
+                      for part in (factored.WEIGHTS, factored.BASIS))),
 }
 # The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
@@ -360,7 +363,9 @@ def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dic
 def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     """Open a store as a lazy :class:`xarray.Dataset`, one Dask chunk per inner Zarr chunk.
 
-    LTM variables stored as float16 (a lossy reconstruction) come back as float32.
+    LTM variables stored as float16 (a lossy reconstruction) come back as float32; those stored
+    in the factored form (``ltm compact --form factored``) come back as the lazy float32 product
+    of their factors, with a light-major view ``ltm_by_light`` computed from the same factors.
 
     ``path`` may also be a Zarr store object (e.g. a :class:`CountingStore`). Variables of
     stages that did not complete are dropped, so partial results are never served.
@@ -388,7 +393,29 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     for name in LTM_VARIABLES:  # a lossy store's float16 LTM computes in float32
         if name in ds and ds[name].dtype == np.float16:
             ds[name] = ds[name].astype(np.float32)
+    ds = _derive_factored(ds, group)
     ds.attrs = dict(group.attrs.asdict())
+    return ds
+
+
+def _derive_factored(ds: xr.Dataset, group: zarr.Group) -> xr.Dataset:
+    """Present each LTM variable stored in the factored form (:mod:`ltmstore.core.factored`)
+    as its lazy product ``(y, x, r, s)``, and its light-major view (one cell per chunk)."""
+    import xarray as xr
+
+    for name in LTM_VARIABLES[:3]:
+        weights, basis = factored.weights_name(name), factored.basis_name(name)
+        if name in ds or weights not in ds or basis not in ds:
+            continue
+        tile = int(group[basis].attrs["tile"])
+        coords = {k: ds[k] for k in ("y", "x", "r", "s") if k in ds.coords}
+        attrs = {k: v for k, v in ds[basis].attrs.items() if k not in ("factored_form_of",
+                                                                        "tile")}
+        cells = tuple(group[basis].chunks[3:])
+        for view, chunk in ((name, cells), (f"{name}_by_light", (1, 1))):
+            data = factored.derived(group[weights], group[basis], tile, chunk)
+            ds[view] = xr.DataArray(data, dims=("y", "x", "r", "s"), coords=coords,
+                                    attrs=attrs)
     return ds
 
 

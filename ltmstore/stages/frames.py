@@ -16,6 +16,7 @@ import zarr
 
 from ltmstore.capture.acquisition import Poses
 from ltmstore.capture.register import ViewRig, rectify
+from ltmstore.core import checksum
 from ltmstore.core.dims import (
     CHANNEL,
     CHROMA,
@@ -291,11 +292,13 @@ class FrameSink:
         self._frames = create_variable(
             self._group, FRAMES, (T, *PIXEL_DIMS), (0, *shape), chunks=chunks,
             attrs={"long_name": "linear luminance Y (BT.601 weights)"},
+            compressors=checksum.FAST_COMPRESSORS,
         )
         self._chroma = create_variable(
             self._group, FRAME_CHROMA, (CHANNEL, T, *PIXEL_DIMS), (2, 0, *shape),
             chunks=(1, *chunks), dtype=np.float16,
             attrs={"long_name": "linear Cb, Cr per frame (for a colour LTM)"},
+            compressors=checksum.FAST_COMPRESSORS,
         )
 
     def _spatial_chunks(self) -> tuple[int, int]:

@@ -122,11 +122,12 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         choice = (choose_params(batch, geometry, method, params=params, seed=seed)
                   if auto else Choice(params=params, errors={}))
     tile = samples.shape[:2]
-    surface = None
-    if method == "physical" and sf.NORMAL in out:  # the surface's maps as well
+    surface, warm = None, None
+    if method == "physical":  # the surface's maps, and the start of the held-out fold's fit
         from ltmstore.solve import physical
 
         estimate, surface = physical.solve_surface(batch, geometry, **choice.params)
+        warm = {"start": physical.parameters(surface)}
     else:
         estimate = get_method(method)(batch, geometry, **choice.params)
     if sf.NORMAL in out:  # every chunk is written: NaN where the tile chose another method
@@ -135,7 +136,8 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         estimate = np.maximum(estimate, 0)  # light transport is never negative (Cb, Cr may be)
         out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
         out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
-            batch, geometry, method, params=choice.params, folds=1).reshape(tile)
+            batch, geometry, method, params=choice.params, folds=1,
+            per_pixel=warm).reshape(tile)
     out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
     ty, tx = block_info[0]["chunk-location"][:2]
     record = {"seconds": time.perf_counter() - start, "method": label, "tile": [int(ty), int(tx)],
@@ -524,7 +526,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     for name in ltm_names:
         st.create_variable(group, name, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
                            chunks=plan.chunks, shards=plan.shards,
-                           compressors=checksum.LTM_COMPRESSORS)
+                           compressors=checksum.FAST_COMPRESSORS)
         st.create_variable(group, tiles_name(name), ("tile_y", "tile_x"), plan.grid,
                            chunks=(1, 1), dtype=str, fill_value="")
     st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)

@@ -45,6 +45,7 @@ import zarr
 from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
+from ltmstore.core import checksum
 from ltmstore.core import store as st
 from ltmstore.core.dims import EXPECTED_ERROR, FRAMES, LTM, LUMA, UNSUPPORTED, Lattice
 from ltmstore.core.errors import LtmError
@@ -118,7 +119,8 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
     for name, values in lat.coords().items():
         st.write_coord(group, name, values, **coordinate_attrs(FAR)[name])
     ltm = st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
-                             chunks=plan.chunks, shards=plan.shards)
+                             chunks=plan.chunks, shards=plan.shards,
+                             compressors=checksum.FAST_COMPRESSORS)
     error = st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
     unsupported = st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image,
                                      chunks=plan.tile, dtype=bool, fill_value=False)
@@ -142,8 +144,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
             fitted, residual = to_lattice[best] @ values, loo32[best] @ values
         else:  # the surface model plus its smoothed residual (and classic model)
             tile_theta = theta[rows, cols].reshape(-1, 3, 6)
-            fitted = at_cells.image(tile_theta, values)
-            residual = at_cells.loo_residual(tile_theta, values)
+            fitted, residual = at_cells.image_and_residual(tile_theta, values)
         fitted = np.clip(fitted, 0, None)
         ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
         rms = np.sqrt(np.mean(residual**2, axis=0))

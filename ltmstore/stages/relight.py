@@ -35,6 +35,7 @@ import dask.array as da
 import numpy as np
 import xarray as xr
 
+from ltmstore.core import factored
 from ltmstore.core.dims import (
     CHROMA,
     CHROMA_LTM,
@@ -329,7 +330,7 @@ def _relight_near(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.nda
     """Point lights on a near-light store: bilinear inside the plane, extrapolated beyond."""
     inside = np.isfinite(points).all(axis=1) & plane.contains(points[:, 0], points[:, 1])
     _warn_far(dirs, _observed_directions(ds))
-    if not inside.all():
+    if not inside.all() or _factored(ds, LTM):  # a factored store relights W (B l)
         ltm = ds[LTM]
         pattern = np.zeros((len(points), ltm.sizes["r"], ltm.sizes["s"]))
         pattern[~inside] = extrapolation_weights(ltm, plane, dirs[~inside])
@@ -337,6 +338,10 @@ def _relight_near(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.nda
             for cell, w in light_weights(ltm, points[k]):
                 pattern[k, cell["r"], cell["s"]] += w
         image = _relight_pattern(ds, xr.DataArray(pattern, dims=(LIGHT, "r", "s")), view, color)
+        if inside.all():  # as _relight_points names them
+            image = image.assign_coords({LIGHT: np.arange(len(points)),
+                                         "light_r": (LIGHT, points[:, 0]),
+                                         "light_s": (LIGHT, points[:, 1])})
     else:
         image = _relight_points(ds, points, view, color)
     return image.assign_coords(light_lx=(LIGHT, dirs[:, 0]), light_ly=(LIGHT, dirs[:, 1]),
@@ -369,6 +374,9 @@ def _relight_pattern(ds: xr.Dataset, lights: xr.DataArray, view, color: bool) ->
 
     def apply(ltm: xr.DataArray) -> xr.DataArray:
         ltm = ltm.isel(box)
+        name = str(ltm.name).removesuffix("_by_light")
+        if views is None and _factored(ds, name):
+            return _factored_dot(ds, name, ltm, pattern, box)
         if views is None:
             return _dot_cells(ltm, pattern) if _one_chunk_per_cell(ltm) else xr.dot(
                 ltm, pattern, dim=["r", "s"])
@@ -378,6 +386,21 @@ def _relight_pattern(ds: xr.Dataset, lights: xr.DataArray, view, color: bool) ->
                                  dim=["r", "s"]) for k, vw in enumerate(vweights)],
                          dim=LIGHT)
     return _finish(ds, apply, views, color)
+
+
+def _factored(ds: xr.Dataset, name: str) -> bool:
+    """Whether the LTM variable ``name`` is stored as factors (:mod:`ltmstore.core.factored`)."""
+    return factored.weights_name(name) in ds and factored.basis_name(name) in ds
+
+
+def _factored_dot(ds: xr.Dataset, name: str, ltm: xr.DataArray, pattern: xr.DataArray,
+                  box: dict[str, slice]) -> xr.DataArray:
+    """``W (B l)`` from the stored factors of ``name``: never the dense LTM."""
+    basis = ds[factored.basis_name(name)]
+    image = factored.relight(ds[factored.weights_name(name)].data, basis.isel(box).data,
+                             pattern.transpose(LIGHT, "r", "s").values, int(basis.attrs["tile"]))
+    coords = {k: c for k, c in ltm.coords.items() if set(c.dims) <= {"y", "x"}}
+    return xr.DataArray(image, dims=(LIGHT, "y", "x"), coords=coords)
 
 
 def _one_chunk_per_cell(ltm: xr.DataArray) -> bool:

@@ -77,6 +77,7 @@ CLASSIC_MARGIN = 0.05
 CHOICE_PIXELS = 4096  # pixels of the image that score it
 MAP_CHUNK = 512  # rows and columns of a map's chunks
 BLOCK = 4096  # pixels fitted at once (memory: a few (BLOCK, lights, 6) arrays)
+GEOMETRY, LINEAR = [0, 1, 4], [2, 3, 5]  # theta's normal and roughness; the rest, linear
 
 
 @dataclass(frozen=True)
@@ -139,17 +140,25 @@ class BlendAt:
     def image(self, theta: np.ndarray, encoded: np.ndarray) -> np.ndarray:
         """Luminance ``(q, p)`` at the query lights from ``encoded (n, p)`` of the pixels
         ``theta (p, 3, 6)``."""
-        return self.linear @ encoded + self.blend.weight * correction(
-            theta, self.train, self.query, self.blend.smoother, color=False,
-            weights=self.smoother)
+        return self.image_and_residual(theta, encoded)[0]
 
     def loo_residual(self, theta: np.ndarray, encoded: np.ndarray) -> np.ndarray:
         """Leave-one-light-out residuals ``(n, p)`` of the luminance ``encoded (n, p)``."""
-        own = self.loo_own @ (encoded - model_encoded(theta, self.train, color=False))
+        return self.image_and_residual(theta, encoded)[1]
+
+    def image_and_residual(self, theta: np.ndarray, encoded: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`image` and :meth:`loo_residual`, the model rendered at the photographs'
+        lights once for both."""
+        at_train = model_encoded(theta, self.train, color=False)
+        image = self.linear @ encoded + self.blend.weight * correction(
+            theta, self.train, self.query, self.blend.smoother, color=False,
+            weights=self.smoother, at_train=at_train)
+        own = self.loo_own @ (encoded - at_train)
         if self.loo_other is None:
-            return own
+            return image, own
         weight = self.blend.weight
-        return weight * own + (1 - weight) * (self.loo_other @ encoded)
+        return image, weight * own + (1 - weight) * (self.loo_other @ encoded)
 
 
 def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = None
@@ -158,7 +167,12 @@ def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = N
     where it is already read."""
     y = np.asarray(group["frames"][:])[valid] if luma is None else luma
     cb, cr = (np.asarray(group["frame_chroma"][i])[valid].astype(np.float32) for i in (0, 1))
-    return np.stack(rgb_from_ycbcr(y, cb, cr), axis=-1).clip(min=0)
+    # written channel by channel into float32: the stacked float64 image (green is computed in
+    # float64) took 4x the memory and time, and every fit reads float32
+    rgb = np.empty((*y.shape, 3), dtype=np.float32)
+    for c, channel in enumerate(rgb_from_ycbcr(y, cb, cr)):
+        np.maximum(channel, 0, out=rgb[..., c], casting="same_kind")
+    return rgb
 
 
 def fit_pixels(rgb: np.ndarray, train: np.ndarray) -> np.ndarray:
@@ -180,19 +194,42 @@ def fit_image(rgb: np.ndarray, train: np.ndarray, *, workers: int = 2) -> np.nda
 def model_encoded(theta: np.ndarray, directions: np.ndarray, *, color: bool) -> np.ndarray:
     """The model at ``directions (d, 3)``, sRGB-encoded: ``(d, p, 3)`` with ``color``, else the
     luminance ``(d, p)``; ``theta (p, 3, 6)``."""
+    if not color and _shared_geometry(theta):
+        # the model is linear in albedo, lobe strength and floor, and the channels share the
+        # normal and roughness: the luminance is the model of the luminance's parameters (one
+        # render instead of three; equal to float32 rounding)
+        n = len(theta)
+        luma = np.zeros((-(-n // 3) * 3, 6))
+        luma[:n] = theta[:, 0]
+        luma[:n, LINEAR] = np.einsum("c,pck->pk", LUMA, theta[:, :, LINEAR])
+        # far lights are the same for every pixel: three pixels' luminance parameters go in as
+        # one pixel's three channels of render_colour
+        packed = physical.render_colour(luma.reshape(-1, 3, 6),
+                                        physical.far_lights(directions, len(luma) // 3))
+        linear = np.moveaxis(packed, 2, 1).reshape(len(luma), -1)[:n]  # (p, d)
+        return linear_to_srgb(linear.T.clip(min=0))
     rgb = physical.render_colour(theta, physical.far_lights(directions, len(theta)))
     linear = np.moveaxis(rgb if color else rgb @ LUMA, 1, 0).clip(min=0)
     return linear_to_srgb(linear.astype(np.float32))
 
 
+def _shared_geometry(theta: np.ndarray) -> bool:
+    """Whether the colour channels of ``theta (p, 3, 6)`` share their normal and roughness (as
+    :func:`fit_pixels` and :func:`read_surface` give them)."""
+    geometry = theta[:, :, GEOMETRY]
+    return bool((geometry == geometry[:, :1]).all())
+
+
 def correction(theta: np.ndarray, train: np.ndarray, query: np.ndarray, smoother: Model, *,
-               color: bool, weights: np.ndarray | None = None) -> np.ndarray:
+               color: bool, weights: np.ndarray | None = None,
+               at_train: np.ndarray | None = None) -> np.ndarray:
     """What the model adds to the smoother's image of the encoded photographs at ``query``:
-    ``srgb(M(query)) - W(query) srgb(M(train))``, ``(q, p[, 3])``; ``weights``: ``W(query)``
-    when it is already at hand."""
+    ``srgb(M(query)) - W(query) srgb(M(train))``, ``(q, p[, 3])``; ``weights``: ``W(query)``,
+    ``at_train``: ``srgb(M(train))``, when already at hand."""
     if weights is None:
         weights = smoother.weights(train, query).astype(np.float32)
-    at_train = model_encoded(theta, train, color=color)
+    if at_train is None:
+        at_train = model_encoded(theta, train, color=color)
     mixed = np.tensordot(weights, at_train, axes=1)
     return model_encoded(theta, query, color=color) - mixed
 

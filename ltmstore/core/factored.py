@@ -1,0 +1,193 @@
+"""The factored stored form of an LTM: per pixel tile, a shared basis over the lattice cells
+and per-pixel weights (``ltm compact --form factored``).
+
+Each tile of ``tile x tile`` pixels holds its LTFs as the rows of a matrix ``A`` (pixels by
+cells); its truncated SVD ``A ~ U_k (S_k V_k)`` keeps the smallest rank ``k`` whose left-out
+energy is at most ``10**(-target/10)`` of the tile's, so every tile (and the whole LTM) keeps
+an SNR of at least ``target`` dB. Stored, for an LTM variable ``name``:
+
+* ``{name}_weights`` ``(y, x, rank)``: ``U_k`` of the pixel's tile, zero beyond its rank;
+* ``{name}_basis`` ``(factor_tile_y, factor_tile_x, rank, r, s)``: ``S_k V_k`` of each tile.
+
+(``rank`` is ``rank_cb``, ``rank_cr`` for the colour LTM's ``ltm_cb``, ``ltm_cr``: each
+variable has its own largest rank.)
+
+:func:`derived` presents ``T[y, x, r, s] = sum_k W[y, x, k] B[y // tile, x // tile, k, r, s]``
+lazily (Dask), chunked like the dense LTM or light-major (one cell per chunk): relighting one
+point light then computes ``W (B l)`` for its cells only, reading the weights and a small part
+of the basis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+WEIGHTS, BASIS = "_weights", "_basis"
+TILE_DIMS = ("factor_tile_y", "factor_tile_x")
+DEFAULT_TILE = 32
+DEFAULT_TARGET_DB = 50.0  # demo LTM: 50.3 dB kept at about 1/14 of the dense float32 bytes
+BLOCK_TILES = 16  # tiles per side of one stored chunk of weights (512 x 512 pixels)
+
+
+def weights_name(name: str) -> str:
+    """The weights variable of the LTM variable ``name``."""
+    return f"{name}{WEIGHTS}"
+
+
+def basis_name(name: str) -> str:
+    """The basis variable of the LTM variable ``name``."""
+    return f"{name}{BASIS}"
+
+
+def rank_dim(name: str) -> str:
+    """The rank dimension of the factors of the LTM variable ``name``."""
+    return "rank" + name.removeprefix("ltm")
+
+
+def factor_tile(values: np.ndarray, target_db: float) -> tuple[np.ndarray, np.ndarray]:
+    """Truncated SVD of one tile's LTFs, at the smallest rank that keeps ``target_db``.
+
+    Parameters
+    ----------
+    values : ndarray
+        ``(h, w, *cells)`` the tile's LTM, finite.
+    target_db : float
+        The least SNR (dB) of the rank-``k`` product against ``values``.
+
+    Returns
+    -------
+    weights : ndarray
+        ``(h, w, k)`` float64.
+    basis : ndarray
+        ``(k, *cells)`` float64.
+    """
+    h, w, *cells = values.shape
+    a = values.reshape(h * w, -1).astype(np.float64)
+    total = float(np.sum(a ** 2))
+    allowed = total * 10 ** (-target_db / 10)
+    rng = np.random.default_rng(0)
+    guess = 48
+    while True:
+        if 2 * guess >= min(a.shape):  # as costly as the whole SVD: take it
+            u, s, vt = np.linalg.svd(a, full_matrices=False)
+        else:  # a randomised range of ``guess`` columns, two power iterations
+            q = np.linalg.qr(a @ rng.standard_normal((a.shape[1], guess)))[0]
+            for _ in range(2):
+                q = np.linalg.qr(a @ (a.T @ q))[0]
+            small, s, vt = np.linalg.svd(q.T @ a, full_matrices=False)
+            u = q @ small
+        left = total - np.cumsum(s ** 2)  # left-out energy at rank 1, 2, ...
+        if left[-1] <= allowed or len(s) == min(a.shape):
+            break
+        guess *= 2
+    k = int(np.argmax(left <= allowed)) + 1 if left[-1] <= allowed else len(s)
+    return u[:, :k].reshape(h, w, k), (s[:k, None] * vt[:k]).reshape(k, *cells)
+
+
+def _product(weights: np.ndarray, basis: np.ndarray, tile: int) -> np.ndarray:
+    """One block of the derived LTM: ``weights (h, w, k)`` of whole tiles (the last ones may be
+    cut) and their ``basis (ty, tx, k, *cells)``."""
+    h, w, _ = weights.shape
+    ty, tx, _, *cells = basis.shape
+    out = np.empty((h, w, *cells), np.float32)
+    for i in range(ty):
+        for j in range(tx):
+            part = weights[i * tile:(i + 1) * tile, j * tile:(j + 1) * tile]
+            b = basis[i, j].reshape(basis.shape[2], -1)
+            out[i * tile:(i + 1) * tile, j * tile:(j + 1) * tile] = (
+                part.astype(np.float32) @ b.astype(np.float32)).reshape(*part.shape[:2], *cells)
+    return out
+
+
+def derived(weights, basis, tile: int, cells: tuple[int, int]):
+    """The LTM ``(y, x, r, s)`` as a lazy product of its stored factors.
+
+    Parameters
+    ----------
+    weights : zarr.Array
+        ``(y, x, rank)``.
+    basis : zarr.Array
+        ``(tile_y, tile_x, rank, r, s)``.
+    tile : int
+        Pixels per tile side.
+    cells : (int, int)
+        Lattice cells per chunk along ``r, s``: the dense LTM's inner chunk, or ``(1, 1)`` for
+        the light-major view that relighting reads.
+
+    Returns
+    -------
+    dask.array.Array
+        float32, chunks of the weights' pixel blocks by ``cells``.
+    """
+    import dask.array as da
+
+    w = da.from_zarr(weights, chunks=weights.chunks)
+    block = (w.chunks[0][0] // tile, w.chunks[1][0] // tile)
+    b = da.from_zarr(basis, chunks=(*block, basis.shape[2], *cells))
+    return da.blockwise(_product, "yxrs", w, "yxk", b, "yxkrs", dtype=np.float32,
+                        align_arrays=False, concatenate=True, tile=tile)
+
+
+class Eager:
+    """A lazy array indexed like a :class:`zarr.Array`: each selection computed to NumPy (for
+    readers of the stored array, such as the exporters, when the store holds factors)."""
+
+    def __init__(self, data) -> None:
+        self.data = data
+        self.shape, self.dtype = data.shape, data.dtype
+
+    def __getitem__(self, key) -> np.ndarray:
+        return np.asarray(self.data[key])
+
+
+def stored_or_derived(group, ds, name: str):
+    """``group[name]`` when stored densely, else the derived ``ds[name]`` as :class:`Eager`."""
+    return group[name] if name in group else Eager(ds[name].data)
+
+
+def _expand_dot(weights: np.ndarray, lit: np.ndarray, tile: int) -> np.ndarray:
+    """One block of ``W (B l)``: ``weights (h, w, k)`` and each tile's ``B l``,
+    ``lit (lights, ty, tx, k)``."""
+    h, w, k = weights.shape
+    n, ty, tx, _ = lit.shape
+    full = np.zeros((ty * tile, tx * tile, k), np.float32)  # whole tiles (the last ones cut)
+    full[:h, :w] = weights
+    tiles = full.reshape(ty, tile, tx, tile, k).transpose(0, 2, 1, 3, 4)
+    out = np.matmul(tiles.reshape(ty * tx, tile * tile, k),  # one small product per tile
+                    lit.astype(np.float32).transpose(1, 2, 3, 0).reshape(ty * tx, k, n))
+    out = out.reshape(ty, tx, tile, tile, n).transpose(4, 0, 2, 1, 3)
+    return out.reshape(n, ty * tile, tx * tile)[:, :h, :w]
+
+
+def relight(weights, basis, pattern: np.ndarray, tile: int):
+    """Images ``W (B l)`` of lights on a lattice, from the factors (never the dense LTM).
+
+    Parameters
+    ----------
+    weights : dask.array.Array
+        ``(y, x, rank)``, chunked in blocks of whole tiles.
+    basis : dask.array.Array
+        ``(tile_y, tile_x, rank, r, s)`` (only the cells ``pattern`` covers).
+    pattern : ndarray
+        ``(lights, r, s)`` the weight of each cell in each light.
+    tile : int
+        Pixels per tile side.
+
+    Returns
+    -------
+    dask.array.Array
+        ``(lights, y, x)`` float32.
+    """
+    import dask.array as da
+
+    pattern = np.asarray(pattern, np.float32)
+    cells = np.argwhere((pattern != 0).any(axis=0))
+    if len(cells):  # read only the cells with a weight
+        parts = [basis[:, :, :, i, j].astype(np.float32) for i, j in cells]
+        lit = da.tensordot(pattern[:, cells[:, 0], cells[:, 1]], da.stack(parts), axes=1)
+    else:
+        lit = da.zeros((len(pattern), *basis.shape[:3]), np.float32,
+                       chunks=(len(pattern), *basis.chunks[:3]))
+    lit = lit.rechunk((-1, basis.chunks[0], basis.chunks[1], -1))  # blocks as the weights
+    return da.blockwise(_expand_dot, "lyx", weights, "yxk", lit, "lyxk", dtype=np.float32,
+                        align_arrays=False, concatenate=True, tile=tile)

@@ -1,0 +1,132 @@
+"""`ltm compact --form factored`: a per-tile basis and per-pixel weights in place of the dense
+LTM; `ltm` reads back lazily within the recorded SNR, relights the same within it, a damaged
+factor is refused, and the factors take fewer bytes than the dense LTM."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+from pipeline_helpers import run_ltm
+
+from ltmstore.core.store import open_store, store_summary
+from ltmstore.stages.relight import disk_light, relight
+
+LIGHTS = [(-0.05, 0.03), (0.08, -0.11), (0.0, 0.0)]
+
+
+def snr_db(reference: np.ndarray, estimate: np.ndarray) -> float:
+    reference = np.asarray(reference, np.float64)
+    return float(10 * np.log10(np.sum(reference ** 2) / np.sum((reference - estimate) ** 2)))
+
+
+def folder_bytes(path) -> int:
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+
+
+@pytest.fixture(scope="session")
+def factored_store(small_store, tmp_path_factory):
+    """The session's store compacted to the factored form (16 x 16 pixel tiles: 4 tiles)."""
+    from ltmstore.stages.compact import compact
+
+    store = tmp_path_factory.mktemp("factored") / "store.zarr"
+    shutil.copytree(small_store, store, copy_function=os.link)
+    info = compact(store, form="factored", tile=16)
+    return store, info
+
+
+def test_factored_ltm_equals_the_dense_one_within_its_recorded_snr(factored_store, small_store):
+    store, info = factored_store
+    dense, ds = open_store(small_store), open_store(store)
+    assert "ltm" not in os.listdir(store) and "ltm_by_light" not in os.listdir(store)
+    assert ds["ltm"].dims == ("y", "x", "r", "s") and ds["ltm"].dtype == np.float32
+    assert ds["ltm"].chunks is not None  # lazy (Dask), derived from the factors
+    measured = snr_db(dense["ltm"].values, ds["ltm"].values)
+    assert measured == pytest.approx(info["snr_db"], abs=0.01)
+    assert 50.0 <= info["snr_db"] < 51.5  # measured 50.53 dB at the 50 dB default target
+    assert info["ranks"]["ltm"]["max"] <= 26  # measured 4 tiles of ranks 19-24 of 256 cells
+    np.testing.assert_allclose(ds["ltm_by_light"].values, ds["ltm"].values, rtol=1e-5,
+                               atol=1e-7)  # the same product, summed in another order
+    recorded = store_summary(store)["compact"]
+    assert recorded["form"] == "factored" and recorded["snr_db"] == info["snr_db"]
+
+
+def test_factors_take_fewer_bytes_than_the_dense_ltm(factored_store, small_store):
+    store, _ = factored_store
+    dense = folder_bytes(small_store / "ltm")
+    factors = folder_bytes(store / "ltm_weights") + folder_bytes(store / "ltm_basis")
+    assert factors < 0.25 * dense  # measured 0.193 (16 x 16 px tiles of 256 cells: rank ~21)
+    assert folder_bytes(store) < folder_bytes(small_store)
+
+
+def test_relight_from_the_factors_matches_the_dense_store(factored_store, small_store):
+    store, info = factored_store
+    expected, found = relight(small_store, LIGHTS).values, relight(store, LIGHTS).values
+    assert snr_db(expected, found) > 54.5  # measured 55.29 dB (recorded ltm: 50.53 dB)
+    area = disk_light(open_store(store)["ltm"], (0.0, 0.0), 0.08)
+    assert snr_db(relight(small_store, area).values, relight(store, area).values) > 70.0  # 72.8
+
+
+def test_a_damaged_factor_chunk_is_refused_by_check_and_relight(factored_store, tmp_path):
+    store = shutil.copytree(factored_store[0], tmp_path / "store.zarr")
+    part = next(p for p in sorted((store / "ltm_weights" / "c").rglob("*")) if p.is_file())
+    data = bytearray(part.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    part.write_bytes(bytes(data))
+    check = run_ltm("check", store)
+    assert check.returncode == 2 and "ltm_weights/c/" in check.stderr
+    out = tmp_path / "relit.png"
+    proc = run_ltm("relight", store, "--light", "0,0", "-o", out)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "damaged" in proc.stderr
+    assert not out.exists()
+
+
+def test_cli_compact_factored_reports_its_cost_and_refuses_twice(small_store, tmp_path):
+    store = shutil.copytree(small_store, tmp_path / "store.zarr", copy_function=os.link)
+    bad = run_ltm("compact", store, "--form", "factored", "--target-snr", "0")
+    assert bad.returncode == 2 and bad.stderr.startswith("ltm: error: target SNR")
+    proc = run_ltm("compact", store, "--form", "factored", "--target-snr", "40")
+    assert proc.returncode == 0, proc.stderr
+    assert "factored" in proc.stdout and "SNR 4" in proc.stdout
+    info = store_summary(store)
+    assert info["complete"] and info["compact"]["form"] == "factored"
+    assert 40.0 <= info["compact"]["snr_db"] < 41.0  # measured 40.10 dB (one tile, rank 16)
+    assert run_ltm("check", store).returncode == 0
+    again = run_ltm("compact", store)
+    assert again.returncode == 2 and "already compacted" in again.stderr
+
+
+@pytest.fixture(scope="module")
+def colour_store(tmp_path_factory, dask_cluster):
+    """A small glossy canvas: a colour LTM (ltm_cb, ltm_cr) beside the luminance."""
+    from distributed import Client
+
+    from ltmstore.stages.ingest import ingest
+    from ltmstore.stages.reconstruct import reconstruct
+    from ltmstore.synthetic.simulate import simulate_acquisition
+
+    folder = tmp_path_factory.mktemp("canvas")
+    simulate_acquisition(folder / "acq", scene="canvas", size=24, seed=2, lattice=(12, 12),
+                         path_density=12.0, progress=False)
+    ingest(folder / "acq", folder / "store.zarr", progress=False)
+    with Client(dask_cluster) as client:
+        reconstruct(folder / "store.zarr", client=client, lattice=(12, 12), progress=False)
+    return folder / "store.zarr"
+
+
+def test_a_colour_ltm_is_factored_and_relights_in_colour(colour_store, tmp_path):
+    from ltmstore.stages.compact import compact
+
+    store = shutil.copytree(colour_store, tmp_path / "store.zarr", copy_function=os.link)
+    info = compact(store, form="factored", tile=8)
+    assert set(info["ranks"]) == {"ltm", "ltm_cb", "ltm_cr"}
+    dense, ds = open_store(colour_store), open_store(store)
+    for name in ("ltm", "ltm_cb", "ltm_cr"):
+        assert name not in os.listdir(store)
+        assert snr_db(dense[name].values, ds[name].values) > 50.0  # the 50 dB default target
+    expected, found = relight(colour_store, LIGHTS).values, relight(store, LIGHTS).values
+    assert found.shape == expected.shape and found.shape[-1] == 3
+    assert snr_db(expected, found) > 52.5  # measured 53.0 dB (ltm 50.9 dB, 9 tiles each)
+    assert run_ltm("check", store).returncode == 0
