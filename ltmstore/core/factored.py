@@ -122,7 +122,9 @@ def derived(weights, basis, tile: int, cells: tuple[int, int]):
     import dask.array as da
 
     w = da.from_zarr(weights, chunks=weights.chunks)
-    block = (w.chunks[0][0] // tile, w.chunks[1][0] // tile)
+    # tiles per stored block of weights: from the stored chunk (whole tiles), not Dask's, which
+    # is cut to the image (400 px of 13 tiles of 32: one block of 13 tiles, not 400 // 32)
+    block = (weights.chunks[0] // tile, weights.chunks[1] // tile)
     b = da.from_zarr(basis, chunks=(*block, basis.shape[2], *cells))
     return da.blockwise(_product, "yxrs", w, "yxk", b, "yxkrs", dtype=np.float32,
                         align_arrays=False, concatenate=True, tile=tile)
