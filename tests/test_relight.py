@@ -116,3 +116,38 @@ def test_the_light_major_copy_relights_the_same(store, tmp_path):
         np.testing.assert_allclose(after, before, rtol=1e-6)
         assert counting.bytes_read < np.prod(SIZE) * 4 * 16  # 12 cells read at most
     assert np.array_equal(relight(copy, lights).values, relight(store, lights).values)
+
+
+def test_the_light_major_copy_in_bands_on_a_cluster_is_the_same(store, tmp_path):
+    """The copy written band by band as tasks of a real cluster (worker processes) equals the
+    one written on threads, and the bands tile the array with whole shards."""
+    import itertools
+    import shutil
+
+    from distributed import Client, LocalCluster
+
+    from ltmstore.stages.by_light import bands, write_by_light
+
+    shape, shards = (40, 70, 12, 16), (40, 70, 4, 4)
+    regions = bands(shape, shards, limit=40 * 70 * 4 * 8)
+    assert len(regions) == 6 and all(r[3] in (slice(0, 8), slice(8, 16)) for r in regions)
+    covered = np.zeros(shape[2:], dtype=int)
+    for region in regions:
+        covered[region[2:]] += 1
+        assert all(s.start % c == 0 for s, c in zip(region, shards, strict=True))
+    assert (covered == 1).all()
+    assert len(bands(shape, shards, limit=1)) == 12  # never less than one shard
+    assert list(itertools.chain(*bands(shape, shards, limit=10**9))) == [
+        slice(0, n) for n in shape]
+
+    threads = shutil.copytree(store, tmp_path / "threads.zarr")
+    cluster = shutil.copytree(store, tmp_path / "cluster.zarr")
+    write_by_light(st.open_group(threads, mode="r+"), "ltm")
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as local, Client(local) as client:
+        copy = write_by_light(st.open_group(cluster, mode="r+"), "ltm", client=client,
+                              band_bytes=SIZE[0] * SIZE[1] * 4 * 8)
+    assert len(bands(copy.shape, copy.shards, SIZE[0] * SIZE[1] * 8)) > 1
+    expected = st.open_group(threads, mode="r")["ltm_by_light"][...]
+    assert np.array_equal(st.open_group(cluster, mode="r")["ltm_by_light"][...], expected)
+    assert np.array_equal(expected, st.open_group(store, mode="r")["ltm"][...])

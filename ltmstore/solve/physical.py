@@ -125,8 +125,18 @@ def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
         raise LtmError("method 'physical' needs each pixel's position on the object plane: "
                        "declare the object's extent in acquisition.json ('object')")
     rs = geometry.positions()[:, :2].astype(np.float32)
-    vec = np.empty((3, len(geometry.pixels), len(rs)), dtype=np.float32)
-    vec[:2] = rs.T[:, None, :] - geometry.pixels.T[:, :, None].astype(np.float32)
+    pixels = geometry.pixels.astype(np.float32)
+    if COMPILED:  # the same values without NumPy's temporaries
+        from ltmstore.solve import physical_near
+
+        toward, half = (np.empty((3, len(pixels), len(rs)), dtype=np.float32) for _ in "th")
+        g = np.empty(toward.shape[1:], dtype=np.float32)
+        physical_near.lights(np.ascontiguousarray(rs), np.ascontiguousarray(pixels),
+                             np.float32(geometry.height), np.float32(led_exponent),
+                             toward, half, g)
+        return Lights(toward, half, g)
+    vec = np.empty((3, len(pixels), len(rs)), dtype=np.float32)
+    vec[:2] = rs.T[:, None, :] - pixels.T[:, :, None]
     vec[2] = geometry.height
     dist2 = (vec**2).sum(axis=0)
     toward = vec / np.sqrt(dist2)

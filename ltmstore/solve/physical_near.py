@@ -30,7 +30,7 @@ from ltmstore.solve.physical_far import (  # one pixel's 6 x 6 step and bounds, 
 )
 
 # the bounds _clip keeps, the fit and the model values
-__all__ = ["LOG_ALPHA", "SLOPE_MAX", "levenberg_marquardt", "model"]
+__all__ = ["LOG_ALPHA", "SLOPE_MAX", "levenberg_marquardt", "lights", "model"]
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
@@ -194,3 +194,26 @@ def model(theta, toward, half, g, out):  # pragma: no cover - compiled
             lobe = a2 / pi * inv_u * inv_u * (norm / np.float32(4))
             out[i, c] = g[i, c] * (rho * cos + k * lobe) + floor
 
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def lights(rs, pixels, height, exponent, toward, half, g):  # pragma: no cover - compiled
+    """Fill ``toward``, ``half (3, n, M)`` and ``g (n, M)`` (float32) with the light of the
+    cells at ``rs (M, 2)`` as seen from the pixels at ``pixels (n, 2)`` (float32, plane units)
+    on a plane at ``height``, with the LED's ``cos^exponent`` emission: the values of
+    :func:`ltmstore.solve.physical.near_lights` in its operations and order (no
+    ``fastmath``), without its ``(3, n, M)`` temporaries (0.01 against 0.05 s for 1024 pixels
+    on 2500 cells)."""
+    f1 = np.float32(1.0)
+    z = np.float32(height)
+    for i in range(pixels.shape[0]):
+        for c in range(rs.shape[0]):
+            x, y = rs[c, 0] - pixels[i, 0], rs[c, 1] - pixels[i, 1]
+            dist2 = x * x + y * y + z * z
+            dist = np.sqrt(dist2)
+            tx, ty, tz = x / dist, y / dist, z / dist
+            hz = tz + f1
+            norm = np.sqrt(tx * tx + ty * ty + hz * hz)
+            toward[0, i, c], toward[1, i, c], toward[2, i, c] = tx, ty, tz
+            half[0, i, c], half[1, i, c], half[2, i, c] = tx / norm, ty / norm, hz / norm
+            g[i, c] = tz ** exponent / dist2

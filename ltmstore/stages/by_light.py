@@ -14,7 +14,10 @@ as many bytes as ``ltm`` itself.
 from __future__ import annotations
 
 import itertools
+import math
+import uuid
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from typing import TYPE_CHECKING
 
 import zarr
@@ -25,9 +28,11 @@ from ltmstore.core.dims import CHROMA_LTM, LTM
 
 if TYPE_CHECKING:  # a far-light reconstruct loads no xarray
     import xarray as xr
+    from distributed import Client
 
 SUFFIX = "_by_light"
 MAX_CHUNK_PIXELS = 1 << 20  # one chunk: at most 1024 x 1024 pixels of one cell (4 MB float32)
+BAND_BYTES = 256 << 20  # read and written at once by one band of the copy
 LTM_NAMES = (LTM, *CHROMA_LTM.values())
 NAMES = tuple(f"{name}{SUFFIX}" for name in LTM_NAMES)
 
@@ -48,8 +53,14 @@ def pixel_chunk(image: tuple[int, int], limit: int = MAX_CHUNK_PIXELS) -> tuple[
     return cy, cx
 
 
-def write_by_light(group: zarr.Group, name: str = LTM, *, workers: int = 2) -> zarr.Array:
+def write_by_light(group: zarr.Group, name: str = LTM, *, client: Client | None = None,
+                   workers: int = 2, band_bytes: int = BAND_BYTES) -> zarr.Array:
     """Write the light-major copy of the LTM variable ``name`` of ``group`` (replacing one).
+
+    The copy is written in bands of whole target shards (:func:`bands`): each band reads its
+    cells of every pixel tile of ``name`` at once, which costs a third of reading each shard's
+    cells apart (the per-shard index and per-chunk overhead of Zarr: 14 against 37 s for the
+    1.6 GB LTM of 400 x 400 pixels on 50 x 50 cells).
 
     Parameters
     ----------
@@ -57,8 +68,13 @@ def write_by_light(group: zarr.Group, name: str = LTM, *, workers: int = 2) -> z
         An open store group (writable) holding ``name``.
     name : str
         ``ltm``, ``ltm_cb`` or ``ltm_cr``.
+    client : distributed.Client, optional
+        Copy the bands as tasks of this client's cluster (one task per band); without it, on
+        ``workers`` threads of this process.
     workers : int
-        Threads copying shards.
+        Threads copying bands where there is no ``client``.
+    band_bytes : int
+        Bytes read and written at once by one band (at least one target shard).
 
     Returns
     -------
@@ -75,16 +91,37 @@ def write_by_light(group: zarr.Group, name: str = LTM, *, workers: int = 2) -> z
                                 shards=shards, dtype=source.dtype,
                                 compressors=checksum.FAST_COMPRESSORS)
     target.attrs.update({**source.attrs.asdict(), "light_major_copy_of": name})
-    starts = [range(0, n, c) for n, c in zip(source.shape, shards, strict=True)]
-
-    def copy(corner: tuple[int, ...]) -> None:
-        region = tuple(slice(a, min(a + c, n))
-                       for a, c, n in zip(corner, shards, source.shape, strict=True))
-        target[region] = source[region]
-
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        list(pool.map(copy, itertools.product(*starts)))
+    regions = bands(source.shape, shards, band_bytes // source.dtype.itemsize)
+    if client is None:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(partial(copy_band, source=source, target=target), regions))
+    else:
+        keys = [f"by-light-{name}-{uuid.uuid4().hex}-{i}" for i in range(len(regions))]
+        client.gather(client.map(copy_band, regions, source=source, target=target, key=keys))
     return target
+
+
+def bands(shape: tuple[int, ...], shards: tuple[int, ...],
+          limit: int) -> list[tuple[slice, ...]]:
+    """Regions of whole ``shards`` that tile an array of ``shape``, each of at most ``limit``
+    elements where one shard allows: the last dimensions are taken whole first (a band of a
+    light-major copy then reads few, large pieces of each pixel tile)."""
+    counts = [-(-n // c) for n, c in zip(shape, shards, strict=True)]
+    take = [1] * len(shape)
+    size = math.prod(shards)
+    for dim in reversed(range(len(shape))):
+        take[dim] = max(1, min(counts[dim], limit // size))
+        size *= take[dim]
+    steps = [t * c for t, c in zip(take, shards, strict=True)]
+    starts = itertools.product(*(range(0, n, step) for n, step in zip(shape, steps, strict=True)))
+    return [tuple(slice(a, min(a + step, n)) for a, step, n in zip(corner, steps, shape,
+                                                                   strict=True))
+            for corner in starts]
+
+
+def copy_band(region: tuple[slice, ...], *, source: zarr.Array, target: zarr.Array) -> None:
+    """Copy ``source[region]`` to ``target[region]`` (a region of whole target shards)."""
+    target[region] = source[region]
 
 
 def light_major(ds: xr.Dataset, name: str = LTM) -> xr.DataArray:

@@ -589,7 +589,7 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
         check_solved(group, name, plan, client)
     start = time.perf_counter()
     for name in names if light_major else ():
-        write_by_light(group, name)  # the light-major copy that relight reads
+        write_by_light(group, name, client=client)  # the light-major copy relight reads
     timings["by_light_s"] = time.perf_counter() - start
     for name in [LTM, *CHROMA_LTM.values()]:
         if tiles_name(name) in group:
