@@ -44,6 +44,9 @@ def group_by_mask(mask: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     if len(mask) == 0:
         return
     flat = mask.reshape(len(mask), -1)
+    if (flat == flat[0]).all():  # a handheld capture's tile: one mask, no sort of the rows
+        yield flat[0], np.arange(len(flat))
+        return
     packed = np.packbits(flat, axis=1)
     _, first, inverse = np.unique(packed, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.ravel()

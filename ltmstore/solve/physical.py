@@ -575,9 +575,10 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
     if start is not None and np.shape(start) != (len(samples), 6):
         raise LtmError(f"physical start of shape {np.shape(start)} does not match the batch of "
                        f"{len(samples)} pixels; expected ({len(samples)}, 6)")
-    key = _fit_key(samples, geometry, led_exponent, n_iter, share, damp_cells,
-                   None if start is None else hashlib.sha1(np.ascontiguousarray(
-                       start, dtype=np.float64).tobytes()).hexdigest())
+    key = None if len(samples) > CACHED_ROWS else _fit_key(  # a tile is fitted once: no key
+        samples, geometry, led_exponent, n_iter, share, damp_cells,
+        None if start is None else hashlib.sha1(np.ascontiguousarray(
+            start, dtype=np.float64).tobytes()).hexdigest())
     with _LOCK:  # workers may run tiles on threads
         cached = _FITS.get(key)
     surface, model, damped = cached or (*fit_surface(
@@ -589,7 +590,7 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
             res = samples.reshape(len(samples), -1) - model
             damped = damped_residual(res.reshape(samples.shape), geometry, damp_cells=damp_cells)
         out = model + residual * damped
-    if len(samples) <= CACHED_ROWS:
+    if key is not None:
         with _LOCK:
             _FITS[key] = (surface, model, damped)
             while len(_FITS) > CACHED_FITS:

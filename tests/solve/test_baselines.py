@@ -56,6 +56,8 @@ def test_group_by_mask_partitions_rows_by_identical_masks():
     assert len(groups) == 3
     for cells, members in groups:
         assert (rows.reshape(6, -1)[members] == cells).all()
+    (cells, members), = group_by_mask(masks[[1, 1, 1]])  # one shared mask: one group
+    assert members.tolist() == [0, 1, 2] and (cells == masks[1].ravel()).all()
 
 
 def test_per_view_runs_the_light_method_once_per_view():
