@@ -126,6 +126,7 @@ def test_the_light_major_copy_in_bands_on_a_cluster_is_the_same(store, tmp_path)
 
     from distributed import Client, LocalCluster
 
+    from ltmstore.core.cluster import LOOPBACK_HTTP
     from ltmstore.stages.by_light import bands, write_by_light
 
     shape, shards = (40, 70, 12, 16), (40, 70, 4, 4)
@@ -144,7 +145,7 @@ def test_the_light_major_copy_in_bands_on_a_cluster_is_the_same(store, tmp_path)
     cluster = shutil.copytree(store, tmp_path / "cluster.zarr")
     write_by_light(st.open_group(threads, mode="r+"), "ltm")
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as local, Client(local) as client:
+                      **LOOPBACK_HTTP) as local, Client(local) as client:
         copy = write_by_light(st.open_group(cluster, mode="r+"), "ltm", client=client,
                               band_bytes=SIZE[0] * SIZE[1] * 4 * 8)
     assert len(bands(copy.shape, copy.shards, SIZE[0] * SIZE[1] * 8)) > 1
