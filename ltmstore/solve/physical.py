@@ -129,8 +129,10 @@ def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
     if COMPILED:  # the same values without NumPy's temporaries
         from ltmstore.solve import physical_near
 
-        toward, half = (np.empty((3, len(pixels), len(rs)), dtype=np.float32) for _ in "th")
-        g = np.empty(toward.shape[1:], dtype=np.float32)
+        shape = (len(pixels), len(rs))
+        toward = np.empty((3, *shape), dtype=np.float32)
+        half = np.empty((3, *shape), dtype=np.float32)
+        g = np.empty(shape, dtype=np.float32)
         physical_near.lights(np.ascontiguousarray(rs), np.ascontiguousarray(pixels),
                              np.float32(geometry.height), np.float32(led_exponent),
                              toward, half, g)
