@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import uuid
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import TYPE_CHECKING
@@ -96,8 +95,7 @@ def write_by_light(group: zarr.Group, name: str = LTM, *, client: Client | None 
         with ThreadPoolExecutor(max_workers=workers) as pool:
             list(pool.map(partial(copy_band, source=source, target=target), regions))
     else:
-        keys = [f"by-light-{name}-{uuid.uuid4().hex}-{i}" for i in range(len(regions))]
-        client.gather(client.map(copy_band, regions, source=source, target=target, key=keys))
+        client.gather(client.map(copy_band, regions, source=source, target=target, pure=False))
     return target
 
 
