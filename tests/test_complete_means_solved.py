@@ -45,3 +45,33 @@ def test_a_lost_tile_is_never_complete(small_store, tmp_path, client):
     with pytest.raises(LtmError, match=r"ltm is not finite at 1024 observed pixels \(first in "
                                        r"tile 0, 0\)"):
         check_solved(group, "ltm", plan, client)
+
+
+def test_a_tile_solved_to_nan_is_refused_before_it_is_written(small_store, tmp_path,
+                                                              monkeypatch):
+    """A solver that returns NaN at observed cells fails its tile, naming it; the stage stays
+    incomplete and no shard of that tile is written (the workers are threads of this process,
+    so they run the broken solver)."""
+    from distributed import Client, LocalCluster
+
+    from ltmstore.core.cluster import LOOPBACK_HTTP
+    from ltmstore.solve import rbf
+    from ltmstore.stages.reconstruct import reconstruct
+
+    real = rbf.solve
+
+    def broken(samples, geometry, **params):
+        out = real(samples, geometry, **params)
+        out[:3] = np.nan  # three pixels of every tile
+        return out
+
+    monkeypatch.setattr(rbf, "solve", broken)
+    store = ingest_only(small_store, tmp_path / "store.zarr")
+    with (LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                       **LOOPBACK_HTTP) as local, Client(local) as client,
+          pytest.raises(LtmError, match=r"the solution of tile \d+, \d+ is not finite at 3 "
+                                        r"observed pixels; nothing of it was written")):
+        reconstruct(store, client=client, lattice=(16, 16), method="rbf", progress=False)
+    group = open_group(store, mode="r")
+    assert group.attrs["stages"]["reconstruct"]["complete"] is False
+    assert group["ltm"].nchunks_initialized == 0

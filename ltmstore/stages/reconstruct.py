@@ -138,14 +138,25 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
             batch, geometry, method, params=choice.params, folds=1,
             per_pixel=warm).reshape(tile)
-    out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
     ty, tx = block_info[0]["chunk-location"][:2]
+    _check_finite(estimate, batch, ty, tx)
+    out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
     record = {"seconds": time.perf_counter() - start, "method": label, "tile": [int(ty), int(tx)],
               "params": choice.params, "heldout": choice.errors, "method_error": method_error}
     out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
     result = np.empty((1, 1), dtype=object)
     result[0, 0] = record
     return result
+
+
+def _check_finite(estimate: np.ndarray, batch: np.ndarray, ty: int, tx: int) -> None:
+    """Refuse a tile whose solution is not finite wherever its samples are (before it is
+    written: :func:`check_solved` then only needs every tile's shard to be there)."""
+    bad = (np.isfinite(batch) & ~np.isfinite(estimate.reshape(batch.shape))).reshape(
+        len(batch), -1).any(axis=1)
+    if bad.any():
+        raise LtmError(f"the solution of tile {ty}, {tx} is not finite at {int(bad.sum())} "
+                       "observed pixels; nothing of it was written")
 
 
 @dataclass(frozen=True)
@@ -599,8 +610,11 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
 
 
 def check_solved(group: zarr.Group, name: str, plan: TilePlan, client: Client) -> None:
-    """Refuse to complete the stage unless the samples hold data and the LTM ``name`` is finite
-    wherever its samples are (a worker that wrote elsewhere, a lost shard).
+    """Refuse to complete the stage unless the samples hold data and every tile of the LTM
+    ``name`` is in the store (a worker that wrote elsewhere, a lost shard). Each tile checked
+    its solution finite wherever its samples are before writing it (:func:`_solve_tile`), so
+    the chunks' count settles it; where one is missing, the samples and the LTM are read to
+    name the first tile at fault.
 
     Raises
     ------
@@ -610,8 +624,11 @@ def check_solved(group: zarr.Group, name: str, plan: TilePlan, client: Client) -
     import dask.array as da
 
     samples_name = SAMPLES if name == LTM else name.replace(LTM, SAMPLES, 1)
+    ltm = group[name]
+    if group[samples_name].nchunks_initialized > 0 and ltm.nchunks_initialized == ltm.nchunks:
+        return
     samples = da.from_zarr(group[samples_name], chunks=plan.block)
-    ltm = da.from_zarr(group[name], chunks=plan.block)
+    ltm = da.from_zarr(ltm, chunks=plan.block)
     lattice_axes = tuple(range(2, samples.ndim))
     observed = da.isfinite(samples)
     missing = (observed & ~da.isfinite(ltm)).any(axis=lattice_axes)
