@@ -56,24 +56,26 @@ def group_by_mask(mask: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         yield flat[group], rows
 
 
-def solve_by_mask(samples: np.ndarray, fit: GroupFit) -> np.ndarray:
+def solve_by_mask(samples: np.ndarray, fit: GroupFit, *,
+                  at: np.ndarray | None = None) -> np.ndarray:
     """Apply a per-mask ``fit`` to every group of rows of a batch ``(n, *lattice)``.
 
     Rows with no observed cell come back as zeros. NaN (or any non-finite value) marks an
-    unobserved cell.
+    unobserved cell. ``at``: flat indices of the only cells wanted (``fit`` then returns
+    ``(len(at), g)``).
 
     Returns
     -------
-    ndarray of float32, same shape as ``samples``.
+    ndarray of float32, same shape as ``samples`` (``(n, len(at))`` with ``at``).
     """
     samples = np.asarray(samples, dtype=np.float64)
     flat = samples.reshape(len(samples), -1)
     observed = np.isfinite(flat)
-    out = np.zeros(flat.shape, dtype=np.float64)
+    out = np.zeros((len(flat), flat.shape[1] if at is None else len(at)), dtype=np.float64)
     for cells, rows in group_by_mask(observed):
         if cells.any():
             out[rows] = fit(cells, flat[rows][:, cells].T).T
-    return out.reshape(samples.shape).astype(np.float32)
+    return out.reshape(samples.shape if at is None else out.shape).astype(np.float32)
 
 
 def light_geometry(geometry: Geometry) -> Geometry:

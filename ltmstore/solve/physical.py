@@ -120,23 +120,37 @@ class Lights:
 
 
 def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
-    """The light of every lattice cell as seen from every pixel of ``geometry.pixels``."""
+    """The light of every lattice cell as seen from every pixel of ``geometry.pixels``
+    (read-only arrays: the last :data:`CACHED_LIGHTS` are kept, since a tile's held-out fold
+    and its fit see the same pixels)."""
     if geometry.pixels is None:
         raise LtmError("method 'physical' needs each pixel's position on the object plane: "
                        "declare the object's extent in acquisition.json ('object')")
-    rs = geometry.positions()[:, :2].astype(np.float32)
-    pixels = geometry.pixels.astype(np.float32)
+    rs = np.ascontiguousarray(geometry.positions()[:, :2], dtype=np.float32)
+    pixels = np.ascontiguousarray(geometry.pixels, dtype=np.float32)
     if COMPILED:  # the same values without NumPy's temporaries
         from ltmstore.solve import physical_near
 
+        key = (hashlib.sha1(rs.tobytes() + pixels.tobytes()).hexdigest(), rs.shape,
+               pixels.shape, float(geometry.height), float(led_exponent))
+        with _LOCK:
+            found = _LIGHTS.get(key)
+        if found is not None:
+            return found
         shape = (len(pixels), len(rs))
         toward = np.empty((3, *shape), dtype=np.float32)
         half = np.empty((3, *shape), dtype=np.float32)
         g = np.empty(shape, dtype=np.float32)
-        physical_near.lights(np.ascontiguousarray(rs), np.ascontiguousarray(pixels),
-                             np.float32(geometry.height), np.float32(led_exponent),
+        physical_near.lights(rs, pixels, np.float32(geometry.height), np.float32(led_exponent),
                              toward, half, g)
-        return Lights(toward, half, g)
+        for array in (toward, half, g):
+            array.flags.writeable = False
+        found = Lights(toward, half, g)
+        with _LOCK:
+            _LIGHTS[key] = found
+            while len(_LIGHTS) > CACHED_LIGHTS:
+                _LIGHTS.popitem(last=False)
+        return found
     vec = np.empty((3, len(pixels), len(rs)), dtype=np.float32)
     vec[:2] = rs.T[:, None, :] - pixels.T[:, :, None]
     vec[2] = geometry.height
@@ -404,7 +418,8 @@ def render_colour(theta: np.ndarray, lights: Lights) -> np.ndarray:
 
 def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
                 n_iter: int = N_ITER, robust: bool = True, share: bool = True,
-                start: np.ndarray | None = None) -> tuple[Surface, np.ndarray]:
+                start: np.ndarray | None = None,
+                at: np.ndarray | None = None) -> tuple[Surface, np.ndarray]:
     """Fit the model to each pixel's observed cells.
 
     Parameters
@@ -425,12 +440,14 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     start : ndarray, shape (n, 6), optional
         Parameters to start the fit from (:func:`parameters` of an earlier fit of these pixels;
         see :func:`fit_parameters`).
+    at : ndarray of int, optional
+        Flat indices of the only cells where the model is wanted.
 
     Returns
     -------
     surface : Surface
     model : ndarray, shape (n, R * S)
-        The model over the whole lattice.
+        The model over the whole lattice (``(n, len(at))``: at the cells ``at``).
     """
     n = len(samples)
     y_all = samples.reshape(n, -1).astype(np.float64)
@@ -453,7 +470,7 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     normal = unit_normal(best[:, 0], best[:, 1])
     surface = Surface(normal=normal, albedo=best[:, 2], specular=best[:, 3],
                       roughness=np.exp(best[:, 4]), ambient=best[:, 5], evidence=evidence)
-    return surface, _model(best, lights_all)
+    return surface, _model(best, lights_all if at is None else lights_all.take(at))
 
 
 def _lobes(theta: np.ndarray, lights: Lights) -> np.ndarray:
@@ -506,25 +523,27 @@ def render(surface: Surface, lights: Lights) -> np.ndarray:
 
 
 def damped_residual(residual: np.ndarray, geometry: Geometry, *,
-                    damp_cells: float = DAMP_CELLS) -> np.ndarray:
+                    damp_cells: float = DAMP_CELLS, at: np.ndarray | None = None) -> np.ndarray:
     """The residual ``(n, R, S)`` (NaN unobserved) interpolated over the lattice by a thin-plate
-    RBF and damped with the distance (in cells) from the pixel's nearest observation."""
+    RBF and damped with the distance (in cells) from the pixel's nearest observation,
+    ``(n, R * S)`` (``(n, len(at))``: at the flat cells ``at`` only)."""
     from scipy import ndimage
 
     from ltmstore.solve import rbf
     from ltmstore.solve.masks import group_by_mask
 
-    interpolated = rbf.solve(residual, geometry).reshape(len(residual), -1)
+    interpolated = rbf.solve(residual, geometry, at=at).reshape(len(residual), -1)
     damp = np.empty(interpolated.shape, dtype=interpolated.dtype)
     for mask, rows in group_by_mask(np.isfinite(residual)):
-        dist = ndimage.distance_transform_edt(~mask.reshape(residual.shape[1:]))
-        damp[rows] = np.exp(-((dist.ravel() / damp_cells) ** 2))
+        dist = ndimage.distance_transform_edt(~mask.reshape(residual.shape[1:])).ravel()
+        damp[rows] = np.exp(-((dist if at is None else dist[at]) / damp_cells) ** 2)
     return interpolated * damp
 
 
 def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
           share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
-          n_iter: int = N_ITER, start: np.ndarray | None = None) -> np.ndarray:
+          n_iter: int = N_ITER, start: np.ndarray | None = None,
+          at: np.ndarray | None = None) -> np.ndarray:
     """Reconstruct a batch of near-light LTFs with the physical model (see the module).
 
     Parameters
@@ -549,20 +568,23 @@ def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
         Start the fit from these parameters (:func:`parameters` of a fit of the same pixels on
         more cells, as a held-out fold of :func:`ltmstore.solve.confidence.expected_error`)
         instead of the generic starts: fewer iterations.
+    at : ndarray of int, optional
+        Flat indices of the only cells wanted (a held-out fold's hidden cells:
+        :func:`ltmstore.solve.validate.heldout_error`); the fit is the same.
 
     Returns
     -------
-    ndarray of float32, same shape as ``samples``.
+    ndarray of float32, same shape as ``samples`` (``(n, len(at))`` with ``at``).
     """
     return solve_surface(samples, geometry, led_exponent=led_exponent, share=share,
                          residual=residual, damp_cells=damp_cells, n_iter=n_iter,
-                         start=start)[0]
+                         start=start, at=at)[0]
 
 
 def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
                   share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
-                  n_iter: int = N_ITER,
-                  start: np.ndarray | None = None) -> tuple[np.ndarray, Surface]:
+                  n_iter: int = N_ITER, start: np.ndarray | None = None,
+                  at: np.ndarray | None = None) -> tuple[np.ndarray, Surface]:
     """:func:`solve`, and the fitted :class:`Surface` behind it."""
     if not 0.0 <= residual <= 1.0:
         raise LtmError(f"physical residual weight {residual!r} must lie in [0, 1]")
@@ -577,34 +599,47 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
     if start is not None and np.shape(start) != (len(samples), 6):
         raise LtmError(f"physical start of shape {np.shape(start)} does not match the batch of "
                        f"{len(samples)} pixels; expected ({len(samples)}, 6)")
+    flat = samples.reshape(len(samples), -1)
+    # with `at`, the model where the residual is (the observed cells) and where it is wanted
+    cols = None if at is None else np.union1d(np.flatnonzero(np.isfinite(flat).any(axis=0)), at)
     key = None if len(samples) > CACHED_ROWS else _fit_key(  # a tile is fitted once: no key
         samples, geometry, led_exponent, n_iter, share, damp_cells,
-        None if start is None else hashlib.sha1(np.ascontiguousarray(
-            start, dtype=np.float64).tobytes()).hexdigest())
+        *(None if v is None else hashlib.sha1(np.ascontiguousarray(
+            v, dtype=np.float64).tobytes()).hexdigest() for v in (start, at)))
     with _LOCK:  # workers may run tiles on threads
         cached = _FITS.get(key)
     surface, model, damped = cached or (*fit_surface(
         samples, geometry, led_exponent=led_exponent, n_iter=n_iter, share=share,
-        start=start), None)
-    out = model
+        start=start, at=cols), None)
+    out = model if at is None else model[:, np.searchsorted(cols, at)]
     if residual > 0:
         if damped is None:
-            res = samples.reshape(len(samples), -1) - model
-            damped = damped_residual(res.reshape(samples.shape), geometry, damp_cells=damp_cells)
-        out = model + residual * damped
+            res = flat - model if at is None else _at_columns(flat, cols, model)
+            damped = damped_residual(res.reshape(samples.shape), geometry, damp_cells=damp_cells,
+                                     at=at)
+        out = out + residual * damped
     if key is not None:
         with _LOCK:
             _FITS[key] = (surface, model, damped)
             while len(_FITS) > CACHED_FITS:
                 _FITS.popitem(last=False)
-    return out.reshape(samples.shape).astype(np.float32), surface
+    return out.reshape(samples.shape if at is None else out.shape).astype(np.float32), surface
+
+
+def _at_columns(flat: np.ndarray, cols: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """``flat - model`` where ``model`` holds only the columns ``cols`` (NaN elsewhere)."""
+    res = np.full(flat.shape, np.nan, dtype=np.result_type(flat, model))
+    res[:, cols] = flat[:, cols] - model
+    return res
 
 
 # The fit does not depend on the residual's weight: the choice of that weight
 # (ltmstore.solve.select.choose_params, three weights on the same held-out folds of a few dozen
 # pixels) fits each fold once, not once per weight.
 _FITS: OrderedDict = OrderedDict()
+_LIGHTS: OrderedDict = OrderedDict()  # near_lights, the most recent last
 _LOCK = threading.Lock()
+CACHED_LIGHTS = 2  # a tile's lights (70 MB for 32 x 32 pixels on 50 x 50 cells) and its pick's
 CACHED_FITS = 4  # folds of small batches whose fit a process keeps
 CACHED_ROWS = 512  # ... batches of at most this many pixels (a tile is solved once)
 

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ltmstore.core.errors import LtmError
-from ltmstore.solve.masks import nearest_fill, per_view, solve_by_mask
+from ltmstore.solve.masks import light_geometry, nearest_fill, per_view, solve_by_mask
 
 if TYPE_CHECKING:
     from ltmstore.solve import Geometry
@@ -66,20 +66,24 @@ def _spacing(points: np.ndarray) -> float:
     return float(np.median(dist[:, 1])) or 1.0
 
 
-def _solve_in(points: np.ndarray, samples: np.ndarray, params: dict) -> np.ndarray:
+def _solve_in(points: np.ndarray, samples: np.ndarray, params: dict,
+              at: np.ndarray | None = None) -> np.ndarray:
     if params["epsilon"] is None:
         params = {**params, "epsilon": 1 / _spacing(points)}
-    return solve_by_mask(samples, partial(_fit, points, params))
+    return solve_by_mask(samples, partial(_fit, points, params, at), at=at)
 
 
-def _fit(points: np.ndarray, params: dict, cells: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """The interpolant of ``values (K, g)`` at the observed ``cells`` onto ``points``: through
-    the mask's :func:`operator` (cached: every tile of a handheld capture shares its mask, and
-    each tile re-solved the same ``K x K`` system) where the batch is large enough to pay for
-    building it (``g`` at least ``K / 2``), else solved directly."""
+def _fit(points: np.ndarray, params: dict, at: np.ndarray | None, cells: np.ndarray,
+         values: np.ndarray) -> np.ndarray:
+    """The interpolant of ``values (K, g)`` at the observed ``cells`` onto ``points`` (its
+    rows ``at`` only, where given): through the mask's :func:`operator` (cached: every tile of
+    a handheld capture shares its mask, and each tile re-solved the same ``K x K`` system)
+    where the batch is large enough to pay for building it (``g`` at least ``K / 2``), else
+    solved directly."""
     if 2 * values.shape[1] >= values.shape[0]:  # by shape alone: the same call, the same path
-        return operator(points, cells, params) @ values.astype(np.float32)
-    return interpolate(points, points[cells], values, **params)
+        rows = operator(points, cells, params)
+        return (rows if at is None else rows[at]) @ values.astype(np.float32)
+    return interpolate(points if at is None else points[at], points[cells], values, **params)
 
 
 _OPERATORS: OrderedDict = OrderedDict()  # key -> operator, the most recent last
@@ -115,7 +119,8 @@ def operator(points: np.ndarray, cells: np.ndarray, params: dict, *,
 
 def solve(samples: np.ndarray, geometry: Geometry, *, kernel: str = "thin_plate_spline",
           smoothing: float = 0.0, epsilon: float | None = None, degree: int | None = None,
-          neighbors: int | None = None, space: str = "directions") -> np.ndarray:
+          neighbors: int | None = None, space: str = "directions",
+          at: np.ndarray | None = None) -> np.ndarray:
     """RBF-interpolate every LTF of a batch ``(n, *lattice)`` (NaN = unobserved).
 
     Parameters
@@ -133,10 +138,13 @@ def solve(samples: np.ndarray, geometry: Geometry, *, kernel: str = "thin_plate_
         Use only this many nearest observed cells per evaluation point (for large K).
     space : {"directions", "positions"}
         Interpolate over the projected light directions ``(lu, lv)`` or over the cell centres.
+    at : ndarray of int, optional
+        Flat indices of the only cells wanted (a held-out fold's hidden cells:
+        :func:`ltmstore.solve.validate.heldout_error`).
 
     Returns
     -------
-    ndarray of float32, same shape as ``samples``.
+    ndarray of float32, same shape as ``samples`` (``(n, len(at))`` with ``at``).
     """
     if kernel not in KERNELS:
         raise LtmError(f"rbf kernel {kernel!r} is unknown; expected one of {', '.join(KERNELS)}")
@@ -147,6 +155,9 @@ def solve(samples: np.ndarray, geometry: Geometry, *, kernel: str = "thin_plate_
     params = {"kernel": kernel, "smoothing": smoothing, "epsilon": epsilon, "degree": degree,
               "neighbors": neighbors}
     if space == "positions":
-        return _solve_in(geometry.positions(), samples, params)
-    return per_view(samples, geometry,
-                    lambda rows, geom2d: _solve_in(geom2d.directions()[:, :2], rows, params))
+        return _solve_in(geometry.positions(), samples, params, at)
+    if at is not None and geometry.ndim == 2:  # one view: its wanted cells alone
+        return _solve_in(light_geometry(geometry).directions()[:, :2], samples, params, at)
+    out = per_view(samples, geometry,
+                   lambda rows, geom2d: _solve_in(geom2d.directions()[:, :2], rows, params))
+    return out if at is None else out.reshape(len(out), -1)[:, at]

@@ -19,6 +19,7 @@ reports those.
 
 from __future__ import annotations
 
+import inspect
 import warnings
 from dataclasses import dataclass
 
@@ -181,9 +182,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
             continue
         train = np.where(hidden[rows].reshape(-1, *samples.shape[1:]), np.nan, samples[rows])
         rowwise = {k: np.asarray(v)[rows] for k, v in (per_pixel or {}).items()}
-        pred = np.asarray(solve(train, geometry.take(rows), **params, **rowwise),
-                          dtype=np.float64)
-        pred = pred.reshape(len(rows), -1)
+        pred = _predict(solve, train, geometry.take(rows), hidden[rows], {**params, **rowwise})
         truth = samples[rows].reshape(len(rows), -1).astype(np.float64)
         err = np.where(hidden[rows], pred - truth, 0.0)
         if keep_prediction:
@@ -199,6 +198,26 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
     return HeldOut(rms=rms, count=count, relative_error=rel, snr_db=snr, folds=int(folds),
                    cells_per_fold=tuple(per_fold), shared_mask=bool((mask == mask[:1]).all()),
                    prediction=prediction)
+
+
+def _predict(solve: Method, train: np.ndarray, geometry: Geometry, hidden: np.ndarray,
+             params: dict) -> np.ndarray:
+    """A fold's prediction ``(n, M)`` (float64): where every row hides the same cells and the
+    method takes ``at`` (:func:`ltmstore.solve.physical.solve`, :func:`ltmstore.solve.rbf.solve`),
+    computed at those cells alone (NaN elsewhere), else everywhere."""
+    if hidden.size and (hidden == hidden[:1]).all() and _takes_at(solve):
+        at = np.flatnonzero(hidden[0])
+        pred = np.full(hidden.shape, np.nan)
+        pred[:, at] = np.asarray(solve(train, geometry, **params, at=at)).reshape(len(train), -1)
+        return pred
+    return np.asarray(solve(train, geometry, **params), dtype=np.float64).reshape(len(train), -1)
+
+
+def _takes_at(solve: Method) -> bool:
+    try:
+        return "at" in inspect.signature(solve).parameters
+    except (TypeError, ValueError):  # a callable without a signature
+        return False
 
 
 def observed_range(samples: np.ndarray) -> np.ndarray:

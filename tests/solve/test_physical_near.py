@@ -127,3 +127,39 @@ def test_a_warm_start_costs_fewer_iterations_and_lands_near_the_cold_fit(monkeyp
     warm, _ = physical.fit_parameters(y, fewer, lights, start=full)
     assert (cold_steps, sum(steps)) == (25, 10)
     assert np.median(np.abs(warm[:, :2] - cold[:, :2])) < 1e-3
+
+
+@pytest.mark.parametrize("rows", [40, 300])  # rbf solved directly, and through the operator
+def test_a_fold_predicts_its_hidden_cells_alone_with_the_same_values(rows):
+    """``at``: the physical model and rbf computed at a held-out fold's cells only give the
+    values of the whole lattice there (the operator's rows: to float32 rounding), and the
+    held-out error is the same as from the whole prediction."""
+    from ltmstore.solve.validate import heldout_error
+
+    rng = np.random.default_rng(7)
+    lattice = Lattice(bounds=((-0.2, 0.2), (-0.2, 0.2)), shape=(16, 16), dims=("r", "s"))
+    geometry = Geometry(lattice, 0.3, rng.uniform(-0.05, 0.05, (rows, 2)))
+    values = physical._model(near_pixels(rows)[2], physical.near_lights(geometry))
+    samples = values.reshape(rows, 16, 16).astype(np.float32)
+    samples[:, rng.random((16, 16)) > 0.4] = np.nan
+    at = np.flatnonzero(~np.isfinite(samples[0]).ravel())[::3]
+    for solve in (physical.solve, rbf.solve):
+        whole = solve(samples, geometry).reshape(rows, -1)[:, at]
+        part = solve(samples, geometry, at=at)
+        assert part.shape == (rows, len(at))
+        np.testing.assert_allclose(part, whole, rtol=0, atol=1e-6 * np.abs(whole).max())
+        full = heldout_error(samples, geometry, lambda s, g, f=solve, **p: f(s, g, **p), folds=2)
+        fast = heldout_error(samples, geometry, solve, folds=2)
+        np.testing.assert_allclose(fast.rms, full.rms, rtol=1e-5)
+
+
+def test_the_near_lights_of_the_same_pixels_are_kept_read_only():
+    rng = np.random.default_rng(8)
+    lattice = Lattice(bounds=((-0.2, 0.2), (-0.2, 0.2)), shape=(16, 16), dims=("r", "s"))
+    pixels = rng.uniform(-0.05, 0.05, (30, 2))
+    first = physical.near_lights(Geometry(lattice, 0.3, pixels))
+    assert physical.near_lights(Geometry(lattice, 0.3, pixels.copy())) is first
+    assert physical.near_lights(Geometry(lattice, 0.31, pixels)) is not first
+    assert physical.near_lights(Geometry(lattice, 0.3, pixels), led_exponent=1.0) is not first
+    with pytest.raises(ValueError, match="read-only"):
+        first.g[0, 0] = 1.0
