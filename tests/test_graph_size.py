@@ -87,10 +87,10 @@ def stores(small_acquisition, tmp_path_factory):
 
 
 def test_reconstruct_tasks_do_not_grow_with_the_lattice(stores):
-    # Measured: [69, 9, 21, 1] = 100 (resample, solve 4 tiles, check, the light-major copy in
-    # one band) on both lattices.
+    # Measured: [69, 9, 1] = 79 (resample, solve 4 tiles, the light-major copy in one band) on
+    # both lattices; the finiteness check counts chunks and builds no graph (it was 21 tasks).
     for n in LATTICES:
-        assert sum(stores[n][1]) <= 110, (n, stores[n][1])
+        assert sum(stores[n][1]) <= 87, (n, stores[n][1])
     assert stores[8][1] == stores[16][1]
 
 
