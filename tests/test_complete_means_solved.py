@@ -75,3 +75,4 @@ def test_a_tile_solved_to_nan_is_refused_before_it_is_written(small_store, tmp_p
     group = open_group(store, mode="r")
     assert group.attrs["stages"]["reconstruct"]["complete"] is False
     assert group["ltm"].nchunks_initialized == 0
+    assert group["expected_error"].nchunks_initialized == 0  # nor its maps

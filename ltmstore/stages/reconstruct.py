@@ -130,6 +130,8 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         warm = {"start": physical.parameters(surface)}
     else:
         estimate = get_method(method)(batch, geometry, **choice.params)
+    ty, tx = block_info[0]["chunk-location"][:2]
+    _check_finite(estimate, batch, ty, tx)
     if sf.NORMAL in out:  # every chunk is written: NaN where the tile chose another method
         _write_surface_tile(out, surface, (slice(y0, y1), slice(x0, x1)), tile)
     if EXPECTED_ERROR in out:  # the luminance pass also maps the confidence
@@ -138,8 +140,6 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
             batch, geometry, method, params=choice.params, folds=1,
             per_pixel=warm).reshape(tile)
-    ty, tx = block_info[0]["chunk-location"][:2]
-    _check_finite(estimate, batch, ty, tx)
     out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
     record = {"seconds": time.perf_counter() - start, "method": label, "tile": [int(ty), int(tx)],
               "params": choice.params, "heldout": choice.errors, "method_error": method_error}
