@@ -169,3 +169,22 @@ def test_a_killed_ingest_leaves_nothing_behind(acq, tmp_path):
     proc.wait()
     ingest(acq, store, overwrite=True, progress=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["store.zarr"]
+
+
+def test_a_chunk_half_written_by_a_killed_process_is_removed_by_the_next_writer(store):
+    """Zarr writes a chunk to a temporary file and renames it: a process killed in between
+    leaves ``<key>.<hex>.partial``, which the damage check counts as outside the chunk grid.
+    The next command that takes the store's write lock removes it, and nothing else."""
+    from ltmstore.core.store import open_store, writing
+
+    chunks = store / "frames" / "c"
+    first = next(p for p in sorted(chunks.rglob("*")) if p.is_file())
+    stray = first.with_name(first.name + ".0123456789abcdef0123456789abcdef.partial")
+    stray.write_bytes(b"half")
+    with pytest.raises(LtmError, match=r"\.partial lie outside the chunk grid"):
+        open_store(store)
+    before = {p for p in store.rglob("*") if p != stray}
+    with writing(store):
+        pass
+    assert not stray.exists() and {p for p in store.rglob("*")} == before
+    open_store(store)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import re
 import shutil
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -147,10 +148,23 @@ def _recover_unlocked(path: Path) -> None:
 
 def remove_leftovers(path: Path) -> None:
     """Remove the partial stores and set-aside old stores that killed processes left beside
-    ``path``. The caller holds the store's lock, so no live process is writing them."""
+    ``path``, and the half-written chunk files left inside it and its revision
+    (:data:`CHUNK_TEMPORARY`). The caller holds the store's lock, so no live process of ours is
+    writing them."""
     for pattern in (f".{path.name}.partial-*", f".{path.name}.old-*"):
         for leftover in path.parent.glob(pattern):
             shutil.rmtree(leftover, ignore_errors=True)
+    for root in (path, revision_path(path)):
+        for folder, _, names in os.walk(root):
+            for name in names:
+                if CHUNK_TEMPORARY.search(name):
+                    Path(folder, name).unlink(missing_ok=True)
+
+
+# Zarr's local store writes a chunk to "<key>.<uuid4 hex>.partial", then renames it to its key:
+# a process killed in between leaves the temporary file, which no reader uses but the damage
+# check (rightly) counts as a file outside the chunk grid.
+CHUNK_TEMPORARY = re.compile(r"\.[0-9a-f]{32}\.partial$")
 
 
 def revision_path(path: str | os.PathLike) -> Path:
