@@ -41,14 +41,13 @@ the residual; ``--method auto`` then prefers another method by held-out error.
 from __future__ import annotations
 
 import hashlib
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ltmstore.core.errors import LtmError
+from ltmstore.solve.cache import Recent
 
 if TYPE_CHECKING:
     from ltmstore.solve import Geometry
@@ -133,8 +132,7 @@ def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
 
         key = (hashlib.sha1(rs.tobytes() + pixels.tobytes()).hexdigest(), rs.shape,
                pixels.shape, float(geometry.height), float(led_exponent))
-        with _LOCK:
-            found = _LIGHTS.get(key)
+        found = _LIGHTS.get(key)
         if found is not None:
             return found
         shape = (len(pixels), len(rs))
@@ -146,10 +144,7 @@ def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
         for array in (toward, half, g):
             array.flags.writeable = False
         found = Lights(toward, half, g)
-        with _LOCK:
-            _LIGHTS[key] = found
-            while len(_LIGHTS) > CACHED_LIGHTS:
-                _LIGHTS.popitem(last=False)
+        _LIGHTS.put(key, found)
         return found
     vec = np.empty((3, len(pixels), len(rs)), dtype=np.float32)
     vec[:2] = rs.T[:, None, :] - pixels.T[:, :, None]
@@ -606,8 +601,7 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
         samples, geometry, led_exponent, n_iter, share, damp_cells,
         *(None if v is None else hashlib.sha1(np.ascontiguousarray(
             v, dtype=np.float64).tobytes()).hexdigest() for v in (start, at)))
-    with _LOCK:  # workers may run tiles on threads
-        cached = _FITS.get(key)
+    cached = None if key is None else _FITS.get(key)
     surface, model, damped = cached or (*fit_surface(
         samples, geometry, led_exponent=led_exponent, n_iter=n_iter, share=share,
         start=start, at=cols), None)
@@ -619,10 +613,7 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
                                      at=at)
         out = out + residual * damped
     if key is not None:
-        with _LOCK:
-            _FITS[key] = (surface, model, damped)
-            while len(_FITS) > CACHED_FITS:
-                _FITS.popitem(last=False)
+        _FITS.put(key, (surface, model, damped))
     return out.reshape(samples.shape if at is None else out.shape).astype(np.float32), surface
 
 
@@ -636,11 +627,10 @@ def _at_columns(flat: np.ndarray, cols: np.ndarray, model: np.ndarray) -> np.nda
 # The fit does not depend on the residual's weight: the choice of that weight
 # (ltmstore.solve.select.choose_params, three weights on the same held-out folds of a few dozen
 # pixels) fits each fold once, not once per weight.
-_FITS: OrderedDict = OrderedDict()
-_LIGHTS: OrderedDict = OrderedDict()  # near_lights, the most recent last
-_LOCK = threading.Lock()
 CACHED_LIGHTS = 2  # a tile's lights (70 MB for 32 x 32 pixels on 50 x 50 cells) and its pick's
 CACHED_FITS = 4  # folds of small batches whose fit a process keeps
+_FITS = Recent(CACHED_FITS)
+_LIGHTS = Recent(CACHED_LIGHTS)  # near_lights
 CACHED_ROWS = 512  # ... batches of at most this many pixels (a tile is solved once)
 
 

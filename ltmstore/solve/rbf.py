@@ -19,8 +19,6 @@ terms, or a singular system (e.g. collinear cells), it falls back to nearest nei
 from __future__ import annotations
 
 import hashlib
-import threading
-from collections import OrderedDict
 from functools import partial
 from math import comb
 from typing import TYPE_CHECKING
@@ -28,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ltmstore.core.errors import LtmError
+from ltmstore.solve.cache import Recent
 from ltmstore.solve.masks import light_geometry, nearest_fill, per_view, solve_by_mask
 
 if TYPE_CHECKING:
@@ -86,9 +85,8 @@ def _fit(points: np.ndarray, params: dict, at: np.ndarray | None, cells: np.ndar
     return interpolate(points if at is None else points[at], points[cells], values, **params)
 
 
-_OPERATORS: OrderedDict = OrderedDict()  # key -> operator, the most recent last
-_LOCK = threading.Lock()
 CACHED_OPERATORS = 8  # masks whose operator a process keeps (each M x K float32)
+_OPERATORS = Recent(CACHED_OPERATORS)
 
 
 def _key(points: np.ndarray, cells: np.ndarray, params: dict) -> tuple:
@@ -103,17 +101,11 @@ def operator(points: np.ndarray, cells: np.ndarray, params: dict, *,
     (a boolean mask over ``points``) to their interpolant at ``points`` (:func:`interpolate`
     of the identity: the interpolant is linear in the values), cached per mask."""
     key = _key(points, cells, params) if key is None else key
-    with _LOCK:  # workers may run tiles on threads
-        found = _OPERATORS.get(key)
-        if found is not None:
-            _OPERATORS.move_to_end(key)
-            return found
-    k = int(np.count_nonzero(cells))
-    found = interpolate(points, points[cells], np.eye(k), **params).astype(np.float32)
-    with _LOCK:
-        _OPERATORS[key] = found
-        while len(_OPERATORS) > CACHED_OPERATORS:
-            _OPERATORS.popitem(last=False)
+    found = _OPERATORS.get(key)
+    if found is None:
+        k = int(np.count_nonzero(cells))
+        found = interpolate(points, points[cells], np.eye(k), **params).astype(np.float32)
+        _OPERATORS.put(key, found)
     return found
 
 
@@ -156,7 +148,7 @@ def solve(samples: np.ndarray, geometry: Geometry, *, kernel: str = "thin_plate_
               "neighbors": neighbors}
     if space == "positions":
         return _solve_in(geometry.positions(), samples, params, at)
-    if at is not None and geometry.ndim == 2:  # one view: its wanted cells alone
+    if geometry.ndim == 2:  # one view
         return _solve_in(light_geometry(geometry).directions()[:, :2], samples, params, at)
     out = per_view(samples, geometry,
                    lambda rows, geom2d: _solve_in(geom2d.directions()[:, :2], rows, params))
