@@ -175,6 +175,30 @@ def test_heldout_error_gives_each_fold_its_rows_of_the_per_pixel_arguments():
     assert result.count[0] == 0 and result.relative_error == 0
 
 
+def test_heldout_error_scores_each_pixels_own_hidden_cells():
+    """Masks that differ per pixel: every fold's errors and kept predictions are those of the
+    method at exactly the cells each row hides (checked against the fold split by hand)."""
+    truth = smooth_ltfs(5)
+    rng = np.random.default_rng(8)
+    samples = np.where(rng.random(truth.shape) < 0.4, truth, np.nan)
+
+    def shifted(batch, geometry):  # a prediction that differs from the truth everywhere
+        return truth[: len(batch)] + 0.01 * np.arange(1, len(batch) + 1)[:, None, None]
+
+    result = heldout_error(samples, GEOMETRY, shifted, folds=3, keep_prediction=True)
+    fold = split_folds(np.isfinite(samples), 3).reshape(5, -1)
+    hidden = (fold >= 0) & (fold < 3)
+    assert not result.shared_mask
+    assert (result.count == hidden.sum(axis=1)).all()
+    # each fold's batch holds the rows that hide a cell in it: every row, in every fold here
+    assert all((fold == f).any(axis=1).all() for f in range(3))
+    np.testing.assert_allclose(result.rms, 0.01 * np.arange(1, 6), rtol=1e-5)
+    kept = result.prediction
+    assert (np.isfinite(kept) == hidden).all()
+    np.testing.assert_allclose(kept[hidden], (truth.reshape(5, -1) + 0.01 * np.arange(
+        1, 6)[:, None])[hidden], rtol=1e-6)
+
+
 def test_heldout_store_reads_a_pixel_subset(small_store):
     out = heldout_store(small_store, method="cs", folds=3, max_pixels=300, seed=1)
     assert out["pixels"] == 300 and out["M"] == 256 and out["shared_mask"]

@@ -182,14 +182,18 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
             continue
         train = np.where(hidden[rows].reshape(-1, *samples.shape[1:]), np.nan, samples[rows])
         rowwise = {k: np.asarray(v)[rows] for k, v in (per_pixel or {}).items()}
-        pred = _predict(solve, train, geometry.take(rows), hidden[rows], {**params, **rowwise})
-        truth = samples[rows].reshape(len(rows), -1).astype(np.float64)
-        err = np.where(hidden[rows], pred - truth, 0.0)
+        # scored at the cells some row hides (a tenth of the lattice, or fewer), not all
+        cols = np.flatnonzero(hidden[rows].any(axis=0))
+        scored = hidden[np.ix_(rows, cols)]
+        pred = _predict(solve, train, geometry.take(rows), scored, cols, {**params, **rowwise})
+        truth = samples[rows].reshape(len(rows), -1)[:, cols].astype(np.float64)
+        err = np.where(scored, pred - truth, 0.0)
         if keep_prediction:
-            prediction[rows] = np.where(hidden[rows], pred, prediction[rows])
+            prediction[np.ix_(rows, cols)] = np.where(scored, pred,
+                                                      prediction[np.ix_(rows, cols)])
         sq[rows] += (err**2).sum(axis=1)
-        count[rows] += hidden[rows].sum(axis=1)
-        ref += float((np.where(hidden[rows], truth, 0.0) ** 2).sum())
+        count[rows] += scored.sum(axis=1)
+        ref += float((np.where(scored, truth, 0.0) ** 2).sum())
         res += float((err**2).sum())
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.where(count > 0, np.sqrt(sq / np.maximum(count, 1)), np.nan)
@@ -200,17 +204,17 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
                    prediction=prediction)
 
 
-def _predict(solve: Method, train: np.ndarray, geometry: Geometry, hidden: np.ndarray,
-             params: dict) -> np.ndarray:
-    """A fold's prediction ``(n, M)`` (float64): where every row hides the same cells and the
-    method takes ``at`` (:func:`ltmstore.solve.physical.solve`, :func:`ltmstore.solve.rbf.solve`),
-    computed at those cells alone (NaN elsewhere), else everywhere."""
-    if hidden.size and (hidden == hidden[:1]).all() and _takes_at(solve):
-        at = np.flatnonzero(hidden[0])
-        pred = np.full(hidden.shape, np.nan)
-        pred[:, at] = np.asarray(solve(train, geometry, **params, at=at)).reshape(len(train), -1)
-        return pred
-    return np.asarray(solve(train, geometry, **params), dtype=np.float64).reshape(len(train), -1)
+def _predict(solve: Method, train: np.ndarray, geometry: Geometry, scored: np.ndarray,
+             cols: np.ndarray, params: dict) -> np.ndarray:
+    """A fold's prediction at the flat cells ``cols`` ``(n, len(cols))`` (float64); ``scored``:
+    which of them each row hides. Where every row hides all of them and the method takes ``at``
+    (:func:`ltmstore.solve.physical.solve`, :func:`ltmstore.solve.rbf.solve`), computed at those
+    cells alone, else everywhere and then taken there."""
+    if scored.all() and _takes_at(solve):
+        pred = solve(train, geometry, **params, at=cols)
+    else:
+        pred = np.asarray(solve(train, geometry, **params)).reshape(len(train), -1)[:, cols]
+    return np.asarray(pred, dtype=np.float64).reshape(len(train), len(cols))
 
 
 def _takes_at(solve: Method) -> bool:
