@@ -445,13 +445,15 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
         The model over the whole lattice (``(n, len(at))``: at the cells ``at``).
     """
     n = len(samples)
-    y_all = samples.reshape(n, -1).astype(np.float64)
-    observed_all = np.isfinite(y_all)
+    flat = samples.reshape(n, -1)
+    observed_all = np.isfinite(flat)
     cells = np.flatnonzero(observed_all.any(axis=0))
     lights_all = near_lights(geometry, led_exponent=led_exponent)
     lights = lights_all.take(cells)
-    observed = observed_all[:, cells]
-    y = np.where(observed, y_all[:, cells], 0.0).astype(np.float32)
+    # np.take keeps rows contiguous (flat[:, cells] is laid out column-major, and every
+    # Levenberg-Marquardt call copied it for the kernel)
+    observed = np.take(observed_all, cells, axis=1)
+    y = np.where(observed, np.take(flat, cells, axis=1), 0.0).astype(np.float32)
     w = observed.astype(np.float32)
     best, w = fit_parameters(y, w, lights, n_iter=n_iter, robust=robust, start=start)
     evidence = _evidence(best, lights_all, observed_all)
