@@ -68,14 +68,23 @@ def solve_by_mask(samples: np.ndarray, fit: GroupFit, *,
     -------
     ndarray of float32, same shape as ``samples`` (``(n, len(at))`` with ``at``).
     """
-    samples = np.asarray(samples, dtype=np.float64)
+    samples = np.asarray(samples)
     flat = samples.reshape(len(samples), -1)
     observed = np.isfinite(flat)
-    out = np.zeros((len(flat), flat.shape[1] if at is None else len(at)), dtype=np.float64)
+    # the fit sees the observed values in float64 and its estimate is stored as float32; only
+    # those values are converted, not the whole (n, M) batch (a handheld tile: one group)
+    out = np.zeros((len(flat), flat.shape[1] if at is None else len(at)), dtype=np.float32)
     for cells, rows in group_by_mask(observed):
-        if cells.any():
-            out[rows] = fit(cells, flat[rows][:, cells].T).T
-    return out.reshape(samples.shape if at is None else out.shape).astype(np.float32)
+        if not cells.any():
+            continue
+        whole = len(rows) == len(flat)
+        values = np.take(flat if whole else flat[rows], np.flatnonzero(cells), axis=1)
+        estimate = fit(cells, values.astype(np.float64).T).T
+        if whole:
+            out[...] = estimate
+        else:
+            out[rows] = estimate
+    return out.reshape(samples.shape if at is None else out.shape)
 
 
 def light_geometry(geometry: Geometry) -> Geometry:
