@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 from heldout_table import captures, render
-from heldout_variants import predictions, ring_folds, split
+from heldout_variants import chosen, predictions, ring_folds, split
 
 from ltmstore.core.dims import LUMA
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
@@ -94,13 +94,6 @@ def criteria(errors: dict[str, np.ndarray], train: np.ndarray) -> dict[str, dict
         out["log"][key] = float(np.exp(np.mean(np.log(v + 1e-12) - np.log(c + 1e-12))))
         out["bands"][key] = float((weight * v).sum() / (weight * c).sum())
     return out
-
-
-def chosen(scores: dict[str, float]) -> str:
-    """The variant :func:`ltmstore.stages.surface.choose_surface` takes by ``scores``."""
-    keys = {k: (k.startswith("exposure"), float(k.split()[1])) for k in scores if k != "classic"}
-    choice = sf.choose_surface({None: scores["classic"], **{keys[k]: scores[k] for k in keys}})
-    return "classic" if choice is None else next(k for k, v in keys.items() if v == choice)
 
 
 def measure(name: str, lp: Path, kwargs: dict, data: Path) -> dict:

@@ -75,15 +75,10 @@ def solve_by_mask(samples: np.ndarray, fit: GroupFit, *,
     # those values are converted, not the whole (n, M) batch (a handheld tile: one group)
     out = np.zeros((len(flat), flat.shape[1] if at is None else len(at)), dtype=np.float32)
     for cells, rows in group_by_mask(observed):
-        if not cells.any():
-            continue
-        whole = len(rows) == len(flat)
-        values = np.take(flat if whole else flat[rows], np.flatnonzero(cells), axis=1)
-        estimate = fit(cells, values.astype(np.float64).T).T
-        if whole:
-            out[...] = estimate
-        else:
-            out[rows] = estimate
+        if cells.any():
+            group = slice(None) if len(rows) == len(flat) else rows  # one group: no gather
+            values = np.take(flat[group], np.flatnonzero(cells), axis=1).astype(np.float64)
+            out[group] = fit(cells, values.T).T
     return out.reshape(samples.shape if at is None else out.shape)
 
 

@@ -180,13 +180,14 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         rows = np.flatnonzero(hidden.any(axis=1))
         if rows.size == 0:
             continue
-        train = np.where(hidden[rows].reshape(-1, *samples.shape[1:]), np.nan, samples[rows])
+        batch, hides = samples[rows], hidden[rows]
+        train = np.where(hides.reshape(batch.shape), np.nan, batch)
         rowwise = {k: np.asarray(v)[rows] for k, v in (per_pixel or {}).items()}
         # scored at the cells some row hides (a tenth of the lattice, or fewer), not all
-        cols = np.flatnonzero(hidden[rows].any(axis=0))
-        scored = hidden[np.ix_(rows, cols)]
+        cols = np.flatnonzero(hides.any(axis=0))
+        scored = hides[:, cols]
         pred = _predict(solve, train, geometry.take(rows), scored, cols, {**params, **rowwise})
-        truth = samples[rows].reshape(len(rows), -1)[:, cols].astype(np.float64)
+        truth = batch.reshape(len(rows), -1)[:, cols].astype(np.float64)
         err = np.where(scored, pred - truth, 0.0)
         if keep_prediction:
             prediction[np.ix_(rows, cols)] = np.where(scored, pred,
