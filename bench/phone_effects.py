@@ -43,10 +43,11 @@ from track_bench import led_errors, link_or_copy  # noqa: E402
 
 from ltmstore import __version__  # noqa: E402
 from ltmstore.judge.evaluate import compare_stores  # noqa: E402
-from ltmstore.synthetic.phone_effects import EFFECTS  # noqa: E402
+from ltmstore.synthetic.phone_effects import EFFECTS, READOUT_S  # noqa: E402
 from ltmstore.synthetic.raw import PhoneCamera, simulate_raw  # noqa: E402
 
 LTM = [str(Path(sys.executable).parent / "ltm")]
+LENSES = {"main": 1000.0, "ultrawide": 540.0}  # phone A's focal length, pixels at 1280 wide
 TARGETS = {"led_rms_mm": 1.0, "placed_fraction": 0.9, "snr_gap_db": 1.0}  # issue 29, item 4
 
 
@@ -66,7 +67,7 @@ def painting_option() -> bool:
 
 def simulate(acq: Path, scene: str, tracking: str, effects: str, args) -> dict:
     w, h = args.phone_size
-    camera = PhoneCamera(size=(w, h), focal_px=1000.0 * w / 1280)
+    camera = PhoneCamera(size=(w, h), focal_px=LENSES[args.lens] * w / 1280)
     return simulate_raw(acq, scene=scene, path_density=args.path_density, seed=args.seed,
                         size=args.size, lattice=tuple(args.lattice), camera=camera,
                         calibration_views=args.calibration_views, overwrite=True,
@@ -102,13 +103,16 @@ def _calibration(ok: bool, path: Path, err: str, focal: float, k1: float) -> dic
             "k1": d["dist_coeffs"][0], "k1_true": k1}
 
 
-def track(acq: Path, sim: dict, tracking: str, has_painting: bool) -> dict:
+def track(acq: Path, sim: dict, tracking: str, has_painting: bool,
+          painting_map: str = "photograph") -> dict:
     video_a = Path(sim["paths"]["phone_a"])
     if tracking == "board":
         target = ["--board", acq / "board.json"]
     elif has_painting:
-        target = ["--painting", Path(sim["paths"]["video"]), "--painting-width",
+        target = ["--painting", Path(sim["paths"][painting_map]), "--painting-width",
                   sim["painting_width_m"]]
+        if sim["effects"].get("rolling-shutter"):  # the readout time, as the phone's spec gives
+            target += ["--readout-ms", 1000 * READOUT_S]
     else:
         return {"ok": False, "error": "not available (ltm track has no --painting)"}
     start = time.perf_counter()
@@ -121,7 +125,8 @@ def track(acq: Path, sim: dict, tracking: str, has_painting: bool) -> dict:
     errors = led_errors(acq / "poses.csv", acq / "truth" / "poses_true.csv", sim["time_offset"])
     return {"ok": True, "seconds": time.perf_counter() - start, **errors,
             "placed_fraction": summary["rows"] / summary["frames"],
-            "frames": summary["frames"], "status": summary.get("status")}
+            "frames": summary["frames"], "status": summary.get("status"),
+            "shutter_ms": summary.get("shutter_ms")}
 
 
 def sync(acq: Path, sim: dict) -> dict:
@@ -173,7 +178,7 @@ def run_case(work: Path, scene: str, tracking: str, effects: str, args,
     row = {"scene": scene, "tracking": tracking, "effects": effects,
            "simulate_s": time.perf_counter() - start, "phone_a_frames": sim["frames"]}
     row["calibration"] = calibrate(acq, sim)
-    row["track"] = track(acq, sim, tracking, has_painting)
+    row["track"] = track(acq, sim, tracking, has_painting, args.map)
     lattice = tuple(sim["lattice"])
     truth = acq / "truth.zarr"
     row["true_poses"] = reconstruct_snr(true_pose_copy(acq, sim), truth, lattice)
@@ -243,8 +248,14 @@ def main() -> None:
     parser.add_argument("--effects", nargs="+", default=None,
                         help="effect sets to run (default: none, each alone, all)")
     parser.add_argument("--trackings", nargs="+", default=["board", "painting"])
+    parser.add_argument("--map", choices=["photograph", "video"], default="photograph",
+                        help="boardless tracking's map: the user's front-on photograph "
+                        "(painting.jpg) or camera B's video (default: %(default)s)")
     parser.add_argument("--size", type=int, default=None, help="video B side, pixels")
     parser.add_argument("--phone-size", type=int, nargs=2, default=None, metavar=("W", "H"))
+    parser.add_argument("--lens", choices=list(LENSES), default="main",
+                        help="phone A's lens: main (65 degrees across) or ultrawide (100 "
+                        "degrees, a phone's 0.5x camera); default: %(default)s")
     parser.add_argument("--path-density", type=float, default=None)
     parser.add_argument("--lattice", type=int, nargs=2, default=None)
     parser.add_argument("--calibration-views", type=int, default=20)

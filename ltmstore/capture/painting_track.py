@@ -11,8 +11,10 @@ Per frame (:meth:`PaintingTracker.track_frame`):
    contrast (local mean and standard deviation), which removes the LED's fall-off; saturated
    pixels (the LED's highlight) are masked;
 2. predict the pose from the last two poses (constant velocity); render the map as the
-   predicted pose would see it and track corners of that rendering into the frame
-   (pyramidal Lucas-Kanade, forward-backward checked), twice, each from the last estimate;
+   predicted pose would see it (smeared over the open shutter by the phone's motion, when the
+   shutter time is known or estimated: :func:`estimate_shutter`) and track corners of that
+   rendering into the frame (pyramidal Lucas-Kanade, forward-backward checked), twice, each
+   from the last estimate;
 3. without a prediction, or where it fails, match SIFT features of the frame against the
    map's (computed once at a few scales; ratio test; RANSAC homography: OpenCV 5.0's
    ``USAC_MAGSAC`` returns no homography at all here) and refine as in 2;
@@ -70,6 +72,9 @@ LK_WINDOW = 21
 LK_LEVELS = 3
 FB_MAX_PX = 0.5  # forward-backward disagreement of a tracked point, working pixels
 HEIGHTS_M = (0.18, 0.3, 0.5)  # camera heights the map's features are computed for
+SHUTTERS_S = (0.0, 1 / 480, 1 / 240, 1 / 120, 1 / 60)  # open-shutter times tried (auto)
+SHUTTER_FRAMES = 24  # the fastest-moving placed frames that choose among them
+BLUR_SAMPLES = 7  # instants of the open shutter averaged into a smeared rendering of the map
 RS_PASSES = 2  # later passes over a video whose rolling shutter is corrected (velocities from
 # the previous pass's poses on both sides of each frame)
 
@@ -238,12 +243,16 @@ class PaintingTracker:
     readout_s : float
         Rolling-shutter readout time of phone A's video, top row to bottom row, seconds
         (phones: 0.02-0.03 s; 0: a global shutter, no correction).
+    shutter_s : float
+        Open-shutter time, seconds (0: sharp frames). Where the camera moves, the map is
+        rendered smeared over it, as the frame is (motion blur).
     """
 
     def __init__(self, painting: PaintingMap, intr: Intrinsics,
-                 config: TrackConfig | None = None, *, readout_s: float = 0.0) -> None:
+                 config: TrackConfig | None = None, *, readout_s: float = 0.0,
+                 shutter_s: float = 0.0) -> None:
         self.map, self.intr, self.config = painting, intr, config or TrackConfig()
-        self.readout_s, self._t = float(readout_s), 0.0
+        self.readout_s, self.shutter_s, self._t = float(readout_s), float(shutter_s), 0.0
         w, h = intr.image_size
         self.k = min(1.0, WORK_WIDTH / w)
         self.work_size = (round(w * self.k), round(h * self.k))
@@ -416,8 +425,7 @@ class PaintingTracker:
         plane_to_work = self.matrix_work @ np.column_stack([r_co[:, 0], r_co[:, 1], tvec])
         scale, level = self._level(tvec[2])
         h = plane_to_work @ np.linalg.inv(self.map.plane_to_map(scale))
-        view = cv2.warpPerspective(level, h, self.work_size, flags=cv2.INTER_LINEAR,
-                                   borderValue=128)
+        view = self._render(level, scale, h, r_co, tvec)
         inside = cv2.warpPerspective(np.ones(level.shape, np.uint8), h, self.work_size,
                                      flags=cv2.INTER_NEAREST, borderValue=0)
         mask = cv2.erode(inside, np.ones((9, 9), np.uint8)) & valid
@@ -451,22 +459,49 @@ class PaintingTracker:
         simulator (:meth:`ltmstore.synthetic.phone_view.PhoneView.row_times`). A phone that
         stamps its frames at the first row's read instead shifts every pose's time by
         ``readout_s / 2``, a constant that ``ltm sync`` absorbs into the clock offset."""
-        if self.readout_s <= 0:
+        motion = self._velocity(r_co, tvec) if self.readout_s > 0 else None
+        if motion is None:
             return img_work
-        c = -r_co.T @ tvec
-        if self._motion is not None:
-            v, w = self._motion
-        elif self._history and 0 < self._t - self._history[-1][0] <= MAX_GAP_S:
-            t1, r1, tv1 = self._history[-1]
-            v, w = camera_motion(t1, (r1, tv1), self._t, (r_co, tvec))
-        else:
-            return img_work
+        (v, w), c = motion, -r_co.T @ tvec
         full = (img_work + 0.5) / self.k - 0.5
         delta = self.readout_s * (self._sensor_row(full) / (self.intr.image_size[1] - 1) - 0.5)
         rel = np.column_stack([obj, np.zeros(len(obj))]) - c
         moved = rel - delta[:, None] * (v + np.cross(w, rel))
         shift = _project(self.intr.matrix, r_co, moved) - _project(self.intr.matrix, r_co, rel)
         return img_work - self.k * shift
+
+    def _velocity(self, r_co: np.ndarray, tvec: np.ndarray):
+        """The camera's velocity and angular velocity at this frame (from the later passes'
+        centred estimate, else since the last pose), or None."""
+        if self._motion is not None:
+            return self._motion
+        if self._history and 0 < self._t - self._history[-1][0] <= MAX_GAP_S:
+            t1, r1, tv1 = self._history[-1]
+            return camera_motion(t1, (r1, tv1), self._t, (r_co, tvec))
+        return None
+
+    def _render(self, level: np.ndarray, scale: float, h: np.ndarray, r_co: np.ndarray,
+                tvec: np.ndarray) -> np.ndarray:
+        """The map level as the camera at this pose sees it (``h``: map to working pixels),
+        smeared as the open shutter smears it where the camera moves (motion blur)."""
+        motion = self._velocity(r_co, tvec) if self.shutter_s > 0 else None
+        if motion is None:
+            return cv2.warpPerspective(level, h, self.work_size, flags=cv2.INTER_LINEAR,
+                                       borderValue=128)
+        (v, w), c = motion, -r_co.T @ tvec
+        hh, ww = level.shape
+        corners = np.array([[0, 0], [ww, 0], [ww, hh], [0, hh]], np.float64) - 0.5
+        rel = np.column_stack([_apply(np.linalg.inv(self.map.plane_to_map(scale)), corners),
+                               np.zeros(4)]) - c
+        acc = np.zeros(self.work_size[::-1], np.float32)
+        offsets = self.shutter_s * (np.arange(BLUR_SAMPLES) / (BLUR_SAMPLES - 1) - 0.5)
+        for dt in offsets:
+            moved = _project(self.matrix_work, r_co, rel - dt * (v + np.cross(w, rel)))
+            hd = cv2.getPerspectiveTransform(corners.astype(np.float32),
+                                             moved.astype(np.float32))
+            acc += cv2.warpPerspective(level, hd, self.work_size, flags=cv2.INTER_LINEAR,
+                                       borderValue=128).astype(np.float32)
+        return np.round(acc / len(offsets)).astype(np.uint8)
 
     def _sensor_row(self, full: np.ndarray) -> np.ndarray:
         """Row on the sensor (lens distortion applied) of undistorted full-size pixels."""
@@ -533,9 +568,11 @@ def _apply(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 def track_painting_video(video: str | os.PathLike, painting: PaintingMap, intr: Intrinsics,
                          config: TrackConfig, *, readout_s: float = 0.0,
+                         shutter_s: float | None = 0.0,
                          progress: bool = True) -> list[FramePose]:
     """Track every frame of phone A's video against the painting (``readout_s``: the
-    rolling-shutter readout time, :class:`PaintingTracker`).
+    rolling-shutter readout time, ``shutter_s``: the open-shutter time, None to estimate it,
+    :class:`PaintingTracker`, :func:`estimate_shutter`).
 
     Raises
     ------
@@ -544,13 +581,23 @@ def track_painting_video(video: str | os.PathLike, painting: PaintingMap, intr: 
         than :data:`~ltmstore.capture.track.MIN_TRACKED_FRACTION` of the frames, or the LED's
         median height is implausible (a painting width not in metres).
     """
-    tracker = PaintingTracker(painting, intr, config, readout_s=readout_s)
+    return _track_video(video, painting, intr, config, readout_s, shutter_s, progress)[0]
+
+
+def _track_video(video, painting: PaintingMap, intr: Intrinsics, config: TrackConfig,
+                 readout_s: float, shutter_s: float | None,
+                 progress: bool) -> tuple[list[FramePose], float]:
+    """:func:`track_painting_video`, and the shutter time it used."""
+    tracker = PaintingTracker(painting, intr, config, readout_s=readout_s,
+                              shutter_s=shutter_s or 0.0)
     results, times, cameras = _track_pass(video, tracker, None, progress, "track")
-    for k in range(RS_PASSES if readout_s > 0 else 0):
+    if shutter_s is None:
+        tracker.shutter_s = estimate_shutter(video, tracker, times, cameras)
+    for k in range(RS_PASSES if readout_s > 0 or tracker.shutter_s > 0 else 0):
         motion = _centred_motion(times, cameras)
         tracker.reset()
         results, times, cameras = _track_pass(video, tracker, motion, progress,
-                                              f"rolling shutter {k + 1}/{RS_PASSES}")
+                                              f"motion {k + 1}/{RS_PASSES}")
     _check_height(results, painting.width)
     if not enough_posed(results):
         good = sum(r.status == "ok" for r in results)
@@ -559,7 +606,34 @@ def track_painting_video(video: str | os.PathLike, painting: PaintingMap, intr: 
                        f"frames of video A {str(video)!r}; expected it in view in at least "
                        f"{MIN_TRACKED_FRACTION:.0%} of the frames (wrong --painting map, or "
                        "the painting not in view?)")
-    return flag_out_of_plane(results, config)
+    return flag_out_of_plane(results, config), tracker.shutter_s
+
+
+def estimate_shutter(video: str | os.PathLike, tracker: PaintingTracker, times: list[float],
+                     cameras: list) -> float:
+    """Phone A's open-shutter time, from the data: the :data:`SHUTTERS_S` candidate whose
+    smeared rendering of the map (:meth:`PaintingTracker._render`) the fastest-moving placed
+    frames fit best (lowest median reprojection error; a frame a candidate cannot place
+    counts as the worst). A sharp video gives 0; motion blur a phone's 1/120 s finds it."""
+    motion = _centred_motion(times, cameras)
+    speed = np.array([np.linalg.norm(m[0]) if m is not None and c is not None else -1.0
+                      for m, c in zip(motion, cameras, strict=True)])
+    fastest = np.argsort(-speed)[:SHUTTER_FRAMES]
+    picked = set(fastest[speed[fastest] > 0].tolist())
+    if not picked:
+        return 0.0
+    frames = [(i, t, tracker._prepare(g)) for i, t, g in video_frames(video, what="video A")
+              if i in picked]
+    errors = np.full((len(SHUTTERS_S), len(frames)), np.inf)
+    for k, shutter in enumerate(SHUTTERS_S):
+        tracker.shutter_s = shutter
+        for j, (i, t, (frame, valid)) in enumerate(frames):
+            tracker._t, tracker._motion = t, motion[i]
+            found = tracker._refine(frame, valid, *cameras[i])
+            if found is not None:
+                errors[k, j] = found[2]
+    tracker._motion = None
+    return float(SHUTTERS_S[int(np.argmin(np.median(errors, axis=1)))])
 
 
 def _track_pass(video, tracker: PaintingTracker, motion: list | None, progress: bool,
@@ -602,7 +676,8 @@ def _check_height(results: list[FramePose], width: float) -> None:
 
 def track_painting(video: str | os.PathLike, painting: PaintingMap, intr: Intrinsics,
                    out: str | os.PathLike, *, config: TrackConfig, readout_s: float = 0.0,
-                   overwrite: bool = False, progress: bool = True) -> dict:
+                   shutter_s: float | None = 0.0, overwrite: bool = False,
+                   progress: bool = True) -> dict:
     """Track phone A's video against the painting and write the poses (as ``ltm track``).
 
     Parameters
@@ -619,6 +694,9 @@ def track_painting(video: str | os.PathLike, painting: PaintingMap, intr: Intrin
         LED offset and the pose checks.
     readout_s : float
         Phone A's rolling-shutter readout time, seconds (0: no correction).
+    shutter_s : float or None
+        Phone A's open-shutter time, seconds (0: sharp frames; None: estimated,
+        :func:`estimate_shutter`).
     overwrite : bool
         Replace an existing ``out``.
     progress : bool
@@ -628,9 +706,10 @@ def track_painting(video: str | os.PathLike, painting: PaintingMap, intr: Intrin
     -------
     dict
         As :func:`ltmstore.capture.track.save_tracks` (``matches``: the median number of
-        inlying painting points).
+        inlying painting points), and ``shutter_ms``, the shutter time used.
     """
     out = refuse_existing(out, overwrite)
-    results = track_painting_video(video, painting, intr, config, readout_s=readout_s,
-                                   progress=progress)
-    return save_tracks(out, results, STATUSES, count_column="matches")
+    results, shutter_s = _track_video(video, painting, intr, config, readout_s, shutter_s,
+                                      progress)
+    return {**save_tracks(out, results, STATUSES, count_column="matches"),
+            "shutter_ms": 1000 * shutter_s}

@@ -48,6 +48,9 @@ def register(sub) -> None:
                    help="with --painting: phone A's rolling-shutter readout time, top row to "
                    "bottom row, ms (phones: 10-30; default: %(default)s, no correction: a "
                    "wrong value costs more frames than none)")
+    p.add_argument("--shutter-ms", type=shutter_ms, default=None, metavar="MS|auto",
+                   help="with --painting: phone A's open-shutter time, ms, for its motion blur "
+                   "(0: sharp frames; default: auto, estimated from the fastest frames)")
     p.add_argument("--intrinsics", required=True, help="JSON from `ltm calibrate`")
     p.add_argument("--led-offset", type=numbers("DX,DY,DZ", "metres"), default=(0.0, 0.0, 0.0),
                    help="LED position from the camera, metres, camera axes (x right, y down, "
@@ -96,6 +99,16 @@ def cmd_calibrate(a: argparse.Namespace) -> None:
           f"{report['views_used']} views; focal {report['focal_px'][0]:.1f} px; wrote {out}")
 
 
+def shutter_ms(text: str) -> float | None:
+    """``--shutter-ms``: ``auto`` (None) or 0-100 ms."""
+    if text == "auto":
+        return None
+    value = number(text)
+    if not 0 <= value <= 100:
+        raise argparse.ArgumentTypeError(f"{text!r} must be auto or 0-100 ms (phones: 4-33)")
+    return value
+
+
 def cmd_track(a: argparse.Namespace) -> None:
     from ltmstore.capture.board import load_board
     from ltmstore.capture.calibrate import load_intrinsics
@@ -120,8 +133,10 @@ def cmd_track(a: argparse.Namespace) -> None:
     if a.painting is not None:
         intr_b = load_intrinsics(a.painting_intrinsics) if a.painting_intrinsics else None
         painting = PaintingMap.load(a.painting, width, intr_b)
+        shutter_s = None if a.shutter_ms is None else a.shutter_ms / 1000
         print_json(track_painting(a.video, painting, intr, a.output, config=config,
-                                  readout_s=a.readout_ms / 1000, overwrite=a.overwrite))
+                                  readout_s=a.readout_ms / 1000, shutter_s=shutter_s,
+                                  overwrite=a.overwrite))
         return
     spec = load_board(a.board)
     print_json(track(a.video, spec, intr, a.output, config=config, overwrite=a.overwrite))

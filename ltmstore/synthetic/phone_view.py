@@ -61,6 +61,13 @@ class PlaneTexture:
         return cv2.remap(self.albedo, col, row, cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=self.border)
 
+    def painting(self) -> np.ndarray:
+        """The albedo texels of the painting (the varnished rectangle at the centre)."""
+        half_w, half_h = self.varnish
+        cols = np.round((np.array([-half_w, half_w]) - self.r0) * self.ppm).astype(int)
+        rows = np.round((self.s0 - np.array([half_h, -half_h])) * self.ppm).astype(int)
+        return self.albedo[rows[0]:rows[1], cols[0]:cols[1]]
+
     def varnished(self, r: np.ndarray, s: np.ndarray) -> np.ndarray:
         """Where the plane points lie on the varnished painting."""
         if self.varnish is None:

@@ -17,6 +17,8 @@ them. Layout::
     OUT/phone_a.mp4|mkv    phone A: the painting (or the board) seen from the phone's pose
     OUT/calibration.mkv    phone A: still views of board.json from varied angles
     OUT/calibration_b.mkv  camera B: still views of board_b.json (with distortion on)
+    OUT/painting.jpg       boardless: the user's front-on photograph of the painting, cropped to
+                           its edges, at the detail phone A sees (``ltm track --painting``'s map)
     OUT/board.json/.png    phone A's board: the A0 tracking board (--board) or an A4 page
     OUT/board_b.json/.png  a coarse A4 board for camera B's calibration
     OUT/truth/             intrinsics.json (phone A, with its distortion), intrinsics_b.json,
@@ -53,6 +55,7 @@ from ltmstore.capture.board import BoardSpec, board_image, board_spec, page_imag
 from ltmstore.capture.calibrate import Intrinsics
 from ltmstore.core.dims import LUMA
 from ltmstore.core.errors import LtmError
+from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.synthetic import writer
 from ltmstore.synthetic.camera_b import CameraBTimeline, camera_b_frames
 from ltmstore.synthetic.phone_effects import (
@@ -72,6 +75,7 @@ from ltmstore.synthetic.phone_effects import (
 )
 from ltmstore.synthetic.phone_view import LedLighting, PhoneView, PlaneTexture, wall_with_painting
 from ltmstore.synthetic.render import GGX, Shading, render_ltm
+from ltmstore.synthetic.scenes import SCENES, Scene, scene_albedo
 from ltmstore.synthetic.simulate import (
     DEFAULT_PATH_DENSITY,
     EXPOSURE_PEAK,
@@ -97,10 +101,13 @@ OFFSET_RANGE = (0.2, 0.5)  # seconds, magnitude of the clock offset (random sign
 BOARD_B_SQUARES = (6, 4)  # camera B's calibration board: 46 mm squares on an A4 page
 CAMERA_B_CALIBRATION_M = (0.6, 0.8)  # camera B's distance from it (the board fills the frame)
 WALL_PX_PER_M = 3000.0  # boardless texture: 0.33 mm per texel (phone A sees 0.3 mm per pixel)
+PAINTING_DETAIL_PX = 600  # the painting's own detail phone A sees (one per wall texel at 20 cm)
+PHOTOGRAPH = "painting.jpg"  # the front-on photograph a user takes of the painting (boardless)
+PHOTO_BLUR_PX = 0.7
 WALL_EXTENT_M = 0.5  # the wall texture spans +-0.5 m: all that phone A sees over the plane
 OUTPUTS = ("acquisition.json", "video.mkv", "video.mp4", "phone_a.mkv", "phone_a.mp4",
-           "calibration.mkv", "calibration_b.mkv", "board.json", "board.png", "board_b.json",
-           "board_b.png", "truth", "truth.zarr", "poses.csv", "poses.frames.csv",
+           "calibration.mkv", "calibration_b.mkv", PHOTOGRAPH, "board.json", "board.png",
+           "board_b.json", "board_b.png", "truth", "truth.zarr", "poses.csv", "poses.frames.csv",
            "intrinsics.json", "intrinsics_b.json")
 
 
@@ -399,6 +406,8 @@ def _execute(setup: RawSetup, folder: Path, truth: bool) -> dict:
     if "distortion" in fx:
         paths.update(calibration_b=str(folder / "calibration_b.mkv"),
                      board_b=str(folder / boards["b_name"]))
+    if not setup.board:
+        paths["photograph"] = str(folder / PHOTOGRAPH)
     return {**info, "paths": paths}
 
 
@@ -414,11 +423,20 @@ def _write_boards(setup: RawSetup, folder: Path) -> dict:
 
 
 def _phone_a_texture(setup: RawSetup, spec: BoardSpec) -> PlaneTexture:
-    albedo = setup.plan.scene.albedo @ LUMA
+    albedo = painting_detail(setup.plan.scene) @ LUMA
     if setup.board:
         return board_texture(spec, albedo, setup.painting_width)
     return wall_with_painting(albedo, setup.painting_width, ppm=WALL_PX_PER_M,
                               extent=WALL_EXTENT_M, seed=setup.plan.seed)
+
+
+def painting_detail(scene: Scene) -> np.ndarray:
+    """The painting's albedo ``(h, w, 3)`` as phone A sees it: a built-in scene rebuilt at
+    :data:`PAINTING_DETAIL_PX` (phone A, close up, resolves what camera B's pixels average),
+    a custom scene as it is."""
+    if scene.name not in SCENES or scene.shape[1] >= PAINTING_DETAIL_PX:
+        return scene.albedo
+    return scene_albedo(scene.name, PAINTING_DETAIL_PX)
 
 
 def _write_phone_a(setup: RawSetup, folder: Path, spec: BoardSpec, times: np.ndarray) -> None:
@@ -429,12 +447,28 @@ def _write_phone_a(setup: RawSetup, folder: Path, spec: BoardSpec, times: np.nda
         writer.write_video(folder / "calibration.mkv", _grey(calibration_frames(
             still, setup.plan.seed, setup.calibration_views, height=height,
             spread=0.15 if setup.board else 0.06)))
-    view = setup.phone_view(_phone_a_texture(setup, spec), not setup.board)
+    texture = _phone_a_texture(setup, spec)
+    if not setup.board:
+        _write_photograph(folder / PHOTOGRAPH, texture.painting(), setup.plan.seed)
+    view = setup.phone_view(texture, not setup.board)
     poses, rng = phone_poses(setup.plan, setup.camera), np.random.default_rng([setup.plan.seed,
                                                                                 606])
     frames = (view.frame(t, poses, rng, setup.led_on) for t in
               tqdm(times, disable=not setup.progress, desc="phone A", unit="frame"))
     _write(setup, folder / ("phone_a" + setup.ext()), _grey(frames), setup.camera.size)
+
+
+def _write_photograph(path: Path, albedo: np.ndarray, seed: int) -> None:
+    """The user's front-on photograph of the painting, cropped to its edges (``ltm track
+    --painting``'s map): room light falling off by 15 % across it, exposed to put white at 90 %,
+    lens blur, sensor noise, JPEG at quality 90."""
+    h, w = albedo.shape
+    ramp = 1.0 - 0.15 * np.linspace(0, 1, w)[None, :] - 0.05 * np.linspace(0, 1, h)[:, None]
+    img = cv2.GaussianBlur((0.9 * albedo * ramp).astype(np.float32), (0, 0), PHOTO_BLUR_PX)
+    code = 255 * linear_to_srgb(np.clip(img, 0, 1))
+    code += np.random.default_rng([seed, 909]).normal(0, NOISE_DN, code.shape)
+    cv2.imwrite(str(path), np.clip(np.round(code), 0, 255).astype(np.uint8),
+                [cv2.IMWRITE_JPEG_QUALITY, 90])
 
 
 def _grey(frames):
@@ -494,7 +528,7 @@ def _write_acquisition(setup: RawSetup, folder: Path, boards: dict) -> None:
     phone_a = {"video": "phone_a" + setup.ext(), "calibration": "calibration.mkv",
                "board": "board.json"}
     if not setup.board:
-        phone_a["painting_width"] = setup.painting_width
+        phone_a.update(painting=PHOTOGRAPH, painting_width=setup.painting_width)
     extra = {"phone_a": phone_a}
     if "distortion" in setup.effects:
         extra["camera_calibration"] = "intrinsics_b.json"

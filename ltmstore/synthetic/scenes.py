@@ -192,37 +192,66 @@ def _canvas(size: int, pitch: float, rng: np.random.Generator) -> Scene:
     height = _smooth(np.minimum(height, 1.0e-3), 0.6)
     per_stroke = rng.uniform(0.12, 0.4, 260)
     roughness = np.where(ids >= 0, per_stroke[ids], 0.5)
-    return _dielectric(_picture("coffee", size), height, roughness, pitch, "canvas")
+    return _dielectric(_canvas_albedo(size), height, roughness, pitch, "canvas")
+
+
+def _canvas_albedo(size: int) -> np.ndarray:
+    return _picture("coffee", size)
 
 
 def _icon(size: int, pitch: float, rng: np.random.Generator) -> Scene:
     """Tempera icon: gilded border and halo (gold, alpha 0.1) on a raised gesso layer."""
-    u, v = _grid(size)
-    ring = np.hypot(u - 0.47, v - 0.33)
-    gold = (np.minimum.reduce([u, v, 1 - u, 1 - v]) < 0.08) | ((ring > 0.17) & (ring < 0.26))
+    gold = _icon_gold(size)
     paint, _ = _strokes(size, rng, count=120, height=(0.1e-3, 0.35e-3))
     height = _smooth(np.where(gold, 0.3e-3, np.minimum(paint, 0.6e-3)), 0.7)
-    albedo = np.where(gold[..., None], 0.0, _picture("astronaut", size))
     spec = np.where(gold[..., None], GOLD, DIELECTRIC_F0)
     roughness = np.where(gold, 0.1, 0.25)
-    return _dielectric(albedo, height, roughness, pitch, "icon",
+    return _dielectric(_icon_albedo(size), height, roughness, pitch, "icon",
                        metallic=gold.astype(np.float64), spec_color=spec)
+
+
+def _icon_gold(size: int) -> np.ndarray:
+    u, v = _grid(size)
+    ring = np.hypot(u - 0.47, v - 0.33)
+    return (np.minimum.reduce([u, v, 1 - u, 1 - v]) < 0.08) | ((ring > 0.17) & (ring < 0.26))
+
+
+def _icon_albedo(size: int) -> np.ndarray:
+    return np.where(_icon_gold(size)[..., None], 0.0, _picture("astronaut", size))
 
 
 def _relief(size: int, pitch: float, rng: np.random.Generator) -> Scene:
     """A painting in an 8 mm frame with a 6 mm relief block and a 4 mm boss: hard cast shadows."""
+    frame, block, boss = _relief_parts(size)
+    paint, _ = _strokes(size, rng, count=160, height=(0.2e-3, 0.5e-3))
+    relief = np.select([frame, block, boss], [8e-3, 6e-3, 4e-3], 0.0)
+    height = _smooth(np.where(relief > 0, relief, np.minimum(paint, 0.8e-3)), 0.5)
+    roughness = np.select([frame, block | boss], [0.35, 0.6], 0.2)
+    return _dielectric(_relief_albedo(size), height, roughness, pitch, "relief")
+
+
+def _relief_parts(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Masks of the frame, the relief block and the boss."""
     u, v = _grid(size)
     frame = np.minimum.reduce([u, v, 1 - u, 1 - v]) < 0.07
     block = (u > 0.18) & (u < 0.45) & (v > 0.55) & (v < 0.8)
     boss = np.hypot(u - 0.68, v - 0.35) < 0.1
-    paint, _ = _strokes(size, rng, count=160, height=(0.2e-3, 0.5e-3))
-    relief = np.select([frame, block, boss], [8e-3, 6e-3, 4e-3], 0.0)
-    height = _smooth(np.where(relief > 0, relief, np.minimum(paint, 0.8e-3)), 0.5)
-    albedo = _picture("chelsea", size)
-    albedo = np.where(frame[..., None], [0.30, 0.17, 0.08], albedo)
-    albedo = np.where((block | boss)[..., None], [0.75, 0.72, 0.66], albedo)
-    roughness = np.select([frame, block | boss], [0.35, 0.6], 0.2)
-    return _dielectric(albedo, height, roughness, pitch, "relief")
+    return frame, block, boss
+
+
+def _relief_albedo(size: int) -> np.ndarray:
+    frame, block, boss = _relief_parts(size)
+    albedo = np.where(frame[..., None], [0.30, 0.17, 0.08], _picture("chelsea", size))
+    return np.where((block | boss)[..., None], [0.75, 0.72, 0.66], albedo)
 
 
 _BUILDERS = {"canvas": _canvas, "icon": _icon, "relief": _relief}
+_ALBEDOS = {"canvas": _canvas_albedo, "icon": _icon_albedo, "relief": _relief_albedo}
+
+
+def scene_albedo(name: str, size: int) -> np.ndarray:
+    """The albedo ``(size, size, 3)`` of ``make_scene(name, size=size)`` alone: cheap at any
+    size (no relief is built), e.g. the painting as a close-up camera resolves it."""
+    if name not in SCENES:
+        raise LtmError(f"unknown scene {name!r}; expected one of {', '.join(SCENES)}")
+    return _ALBEDOS[name](int(size))
