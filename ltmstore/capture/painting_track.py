@@ -12,9 +12,9 @@ Per frame (:meth:`PaintingTracker.track_frame`):
    pixels (the LED's highlight) are masked;
 2. predict the pose from the last two poses (constant velocity); render the map as the
    predicted pose would see it (smeared over the open shutter by the phone's motion, when the
-   shutter time is known or estimated: :func:`estimate_shutter`) and track corners of that
-   rendering into the frame (pyramidal Lucas-Kanade, forward-backward checked), twice, each
-   from the last estimate;
+   shutter time is known or estimated: :func:`estimate_shutter`), normalise it over the same
+   working pixels as the frame, and track corners of that rendering into the frame (pyramidal
+   Lucas-Kanade, forward-backward checked), twice, each from the last estimate;
 3. without a prediction, or where it fails, match SIFT features of the frame against the
    map's (computed once at a few scales; ratio test; RANSAC homography: OpenCV 5.0's
    ``USAC_MAGSAC`` returns no homography at all here) and refine as in 2;
@@ -278,15 +278,15 @@ class PaintingTracker:
     # -- the map -----------------------------------------------------------------------------
 
     def _pyramid(self) -> list[tuple[float, np.ndarray]]:
-        """(scale, normalised image) of the map, halving down to the coarsest useful size."""
+        """(scale, image) of the map, halving down to the coarsest useful size."""
         img = self.map.image
-        levels = [(1.0, normalise(img))]
+        levels = [(1.0, img)]
         need = self.matrix_work[0, 0] / max(HEIGHTS_M) / 2  # px/m at the highest camera, / 2
         scale = 1.0
         while self.map.px_per_m * scale / 2 >= need and min(img.shape) >= 64:
             img = cv2.pyrDown(img)
             scale = img.shape[1] / self.map.image.shape[1]
-            levels.append((scale, normalise(img)))
+            levels.append((scale, img))
         return levels
 
     def _map_features(self) -> tuple[np.ndarray, np.ndarray]:
@@ -483,11 +483,12 @@ class PaintingTracker:
     def _render(self, level: np.ndarray, scale: float, h: np.ndarray, r_co: np.ndarray,
                 tvec: np.ndarray) -> np.ndarray:
         """The map level as the camera at this pose sees it (``h``: map to working pixels),
-        smeared as the open shutter smears it where the camera moves (motion blur)."""
+        smeared as the open shutter smears it where the camera moves (motion blur), then
+        normalised as the frame is, over the same working pixels."""
         motion = self._velocity(r_co, tvec) if self.shutter_s > 0 else None
         if motion is None:
-            return cv2.warpPerspective(level, h, self.work_size, flags=cv2.INTER_LINEAR,
-                                       borderValue=128)
+            return normalise(cv2.warpPerspective(level, h, self.work_size, flags=cv2.INTER_LINEAR,
+                                                 borderMode=cv2.BORDER_REPLICATE))
         (v, w), c = motion, -r_co.T @ tvec
         hh, ww = level.shape
         corners = np.array([[0, 0], [ww, 0], [ww, hh], [0, hh]], np.float64) - 0.5
@@ -500,8 +501,8 @@ class PaintingTracker:
             hd = cv2.getPerspectiveTransform(corners.astype(np.float32),
                                              moved.astype(np.float32))
             acc += cv2.warpPerspective(level, hd, self.work_size, flags=cv2.INTER_LINEAR,
-                                       borderValue=128).astype(np.float32)
-        return np.round(acc / len(offsets)).astype(np.uint8)
+                                       borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
+        return normalise(acc / len(offsets))
 
     def _sensor_row(self, full: np.ndarray) -> np.ndarray:
         """Row on the sensor (lens distortion applied) of undistorted full-size pixels."""
