@@ -572,8 +572,8 @@ def painting_trackers(image: str | os.PathLike, width: float, intr: Intrinsics,
     def make(size: tuple[int, int]) -> Tracker:
         return pt.PaintingTracker(painting, scaled_intrinsics(intr, size), config).track_frame
 
-    def run(video: Path, size: tuple[int, int]) -> list[FramePose]:
+    def run(video: Path, size: tuple[int, int]) -> list[FramePose]:  # as `ltm track`: shutter
         return pt.track_painting_video(video, painting, scaled_intrinsics(intr, size), config,
-                                       progress=False)
+                                       shutter_s=None, progress=False)  # time estimated
 
     return make, run
