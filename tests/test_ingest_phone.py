@@ -238,3 +238,27 @@ def test_frames_no_fixed_exposure_explains_are_refused():
         log_gain=np.zeros((n, 3)), stderr=np.full((n, 3), 0.005),
         stderr_data=np.full((n, 3), 0.005), lit=lit, residual=0.004))
     assert gains is None and record["corrected"] is False
+
+
+def test_a_drift_the_data_cannot_measure_is_not_taken_as_locked():
+    """Camera B's auto exposure with poses that sync put 3 frames off (a simulated ultrawide
+    capture) measured as a 5.7 % RMS drift with a 1.5 % standard error, but a data-only standard
+    error of 29 %: within four of its own standard errors, it was taken as locked and ingested
+    with exit 0. A drift the data cannot measure is refused unless it is below 1 %."""
+    from ltmstore.stages.drift import DriftEstimate
+    from ltmstore.stages.phone import DRIFT_MIN, _drift_decision
+
+    n = 200
+    wave = np.sin(np.linspace(0, 6, n))[:, None] * np.ones(3)
+
+    def estimate(rms: float, stderr_data: float) -> DriftEstimate:
+        return DriftEstimate(log_gain=rms * np.sqrt(2) * wave, stderr=np.full((n, 3), 0.015),
+                             stderr_data=np.full((n, 3), stderr_data), lit=np.ones(n, bool),
+                             residual=0.0045)
+
+    with pytest.raises(LtmError, match="cannot be measured to better than 29.0%.*lock exposure"):
+        _drift_decision(estimate(0.057, 0.29))
+    gains, record = _drift_decision(estimate(0.057, 0.01))  # measurable: within its noise
+    assert gains is None and not record["corrected"]
+    gains, record = _drift_decision(estimate(0.8 * DRIFT_MIN, 0.29))  # negligible
+    assert gains is None and not record["corrected"]
