@@ -157,11 +157,12 @@ def _drift_decision(drift: DriftEstimate | None) -> tuple[np.ndarray | None, dic
         raise LtmError(f"camera B's frames change in a way a fixed exposure cannot explain (RMS "
                        f"misfit {drift.residual:.1%} per frame, expected at most "
                        f"{MAX_DRIFT_RESIDUAL:.0%}: auto exposure?); {LOCK_ADVICE}")
-    if amplitude <= DRIFT_MIN or (amplitude <= record["threshold"]
-                                  and determination <= MAX_DRIFT_STDERR):
-        return None, {**record, "corrected": False}  # locked (a gain the data cannot measure
-        # is not taken as locked merely for being within its own large noise)
-    if span > MAX_DRIFT_SPAN or determination > MAX_DRIFT_STDERR:
+    # locked: negligible, or within its noise where the data measure it (a drift they cannot
+    # measure is not taken as locked merely for being within its own large noise)
+    measurable = determination <= MAX_DRIFT_STDERR
+    if amplitude <= DRIFT_MIN or (amplitude <= record["threshold"] and measurable):
+        return None, {**record, "corrected": False}
+    if span > MAX_DRIFT_SPAN or not measurable:
         why = (f"changes by a factor {math.exp(span):.2f}, more than {math.exp(MAX_DRIFT_SPAN):g}"
                if span > MAX_DRIFT_SPAN else
                f"cannot be measured to better than {determination:.1%} (the light path comes "
