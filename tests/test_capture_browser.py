@@ -11,6 +11,8 @@ viewer's browser tests (``browser.chromium_path``; a failure in CI).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import zarr
@@ -229,6 +231,56 @@ def test_page_says_enough_and_warns(tmp_path):
             # but not counted: the 5 placed cells and the 4 the path crosses between them
             # (bridged as ingest bridges camera B's frames between tracked positions)
             assert len(state["coveredCells"]) == 9
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_phone_a_opens_the_ultra_wide_lens_or_the_one_picked(tmp_path):
+    """Phone A's page prefers a back ultra-wide lens (by the label the browser gives it), keeps
+    a camera picked in its list for the next Start, and lists every camera once one is open
+    (three fake cameras; a scripted tracker)."""
+    import threading
+
+    from browser import Browser
+    from capture_pages_helpers import VIEWPORT
+
+    from ltmstore.capture.live import LiveConfig, LiveSession
+    from ltmstore.capture.live_server import make_server
+
+    plane = Plane(r=(-0.2, 0.2), s=(-0.2, 0.2), height=0.3)
+    config = LiveConfig(plane=plane, lattice=LATTICE, target_km=0.5, height_tolerance=0.015)
+    server = make_server(LiveSession(tmp_path / "acq", config, scripted_tracker))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    labels = [{"deviceId": "m", "label": "Back Camera"}, {"deviceId": "f", "label": "Front Camera"},
+              {"deviceId": "f5", "label": "Front Ultra Wide Camera"},
+              {"deviceId": "u", "label": "Back Ultra Wide Camera"},
+              {"deviceId": "a", "label": "camera2 0, facing back"}]
+    try:
+        with Browser(*VIEWPORT, args=("--use-fake-device-for-media-stream=device-count=3",
+                                      "--use-fake-ui-for-media-stream")) as page:
+            page.goto(server.url("/a"))
+            pick = "ltm.preferredCamera({}, {})"
+            assert page.evaluate(pick.format(json.dumps(labels), "null")) == "u"
+            assert page.evaluate(pick.format(json.dumps(labels[:3] + labels[4:]), "null")) is None
+            assert page.evaluate(pick.format(json.dumps(labels), '"a"')) == "a"
+            assert page.evaluate(pick.format(json.dumps(labels), '"gone"')) == "u"
+            page.evaluate("document.getElementById('start').click()")
+            page.wait_for("window.ltmCapture.state === 'running'")
+            # no label says ultra-wide: the browser's own back camera, all three listed
+            assert page.evaluate("window.ltmCapture.camera") == "fake_device_0"
+            options = page.evaluate("[...document.getElementById('camera').options]"
+                                    ".map((o) => o.text)")
+            assert options == ["fake_device_0", "fake_device_1", "fake_device_2"]
+            page.evaluate("(() => { const s = document.getElementById('camera');"
+                          " s.selectedIndex = 2; s.dispatchEvent(new Event('change')); })()")
+            page.goto(server.url("/a"))  # the choice outlives the page
+            page.wait_for("document.getElementById('camera').options.length === 3")
+            assert page.evaluate("document.getElementById('camera').selectedOptions[0].text") \
+                == "fake_device_2"
+            page.evaluate("document.getElementById('start').click()")
+            page.wait_for("window.ltmCapture.state === 'running'")
+            assert page.evaluate("window.ltmCapture.camera") == "fake_device_2"
     finally:
         server.shutdown()
         server.server_close()

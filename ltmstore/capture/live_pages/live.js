@@ -48,6 +48,45 @@ const ltm = (() => {
     return navigator.mediaDevices.getUserMedia({video, audio: false});
   }
 
+  // Labels of a phone's ultra-wide back lens: iOS "Back Ultra Wide Camera", others "0.5x"
+  const ULTRA_WIDE = /ultra[\s-]?wide|\b0[.,]5\s*x/i;
+
+  /** The camera to open among ``devices`` (enumerateDevices' video inputs): ``saved`` (a
+   * deviceId) where it is still there, else a back ultra-wide lens (its wide view keeps the
+   * painting in sight close up), else null: the browser's own back camera. */
+  function preferredCamera(devices, saved) {
+    if (saved && devices.some((d) => d.deviceId === saved)) return saved;
+    const wide = devices.find((d) => ULTRA_WIDE.test(d.label) && !/front/i.test(d.label));
+    return wide ? wide.deviceId : null;
+  }
+
+  /** Fill ``select`` with the cameras the browser names (it names them once one was open),
+   * ``current`` (a deviceId) selected; a choice is saved under ``key`` for the next Start. */
+  async function listCameras(select, key, current = null) {
+    const devices = (await navigator.mediaDevices.enumerateDevices())
+      .filter((d) => d.kind === "videoinput" && d.label);
+    select.replaceChildren(...devices.map((d) => new Option(d.label, d.deviceId, false,
+                                                             d.deviceId === current)));
+    select.hidden = !devices.length;
+    select.onchange = () => localStorage.setItem(key, select.value);
+    return devices;
+  }
+
+  /** Open the back camera, then switch to the preferred one (``preferredCamera``: the one
+   * saved under ``key``, else an ultra-wide lens); ``select`` lists them all. */
+  async function openPreferredCamera(select, key, extra = {}) {
+    let stream = await openCamera(Object.assign({facingMode: {ideal: "environment"}}, extra));
+    const opened = stream.getVideoTracks()[0].getSettings().deviceId;
+    const wanted = preferredCamera(await listCameras(select, key, opened),
+                                   localStorage.getItem(key));
+    if (wanted && wanted !== opened) {
+      stream.getTracks().forEach((t) => t.stop());
+      stream = await openCamera(Object.assign({deviceId: {exact: wanted}}, extra));
+      select.value = wanted;
+    }
+    return stream;
+  }
+
   function formatTime(seconds) {
     const s = Math.max(0, Math.floor(seconds));
     return `${Math.floor(s / 60)}:${String(s % 60).padStart(2, "0")}`;
@@ -186,6 +225,7 @@ const ltm = (() => {
     return {stats, add, finish};
   }
 
-  return {token, api, sleep, banner, setText, keepAwake, openCamera, formatTime, finishCapture,
-          startRecorder, stopRecorder, recordingUpload};
+  return {token, api, sleep, banner, setText, keepAwake, openCamera, preferredCamera, listCameras,
+          openPreferredCamera, formatTime, finishCapture, startRecorder, stopRecorder,
+          recordingUpload};
 })();

@@ -8,6 +8,8 @@
 // intrinsics): 1280 x 720 is what the tracker is measured at, and a 4K JPEG per frame would
 // cut the update rate several times over for no gain in the drawn path.
 const MAX_SEND_WIDTH = 1280;
+// Where the page keeps the camera picked (a deviceId): the lens the intrinsics were calibrated on.
+const CAMERA_KEY = "ltm.capture.phoneA.camera";
 
 const capture = {
   state: "idle",      // idle -> starting -> running -> stopping -> stopped -> finished | error
@@ -18,6 +20,7 @@ const capture = {
   sent: 0,            // frames sent
   answered: 0,        // answers received
   placed: 0,          // answers with the light placed
+  camera: null,       // the open camera's label
   torch: "unknown",   // "on" (the page switched the LED on) | "manual" (the user must)
   resolution: null,   // [width, height] of the frames sent
   latencyMs: null,    // mean time from sending a frame to its answer (last 20)
@@ -50,9 +53,10 @@ async function start() {
   if (stream) stream.getTracks().forEach((t) => t.stop());  // a restart after an error
   try {
     capture.config = await ltm.api("/api/config");
-    stream = await ltm.openCamera(Object.assign({facingMode: {ideal: "environment"}},
-                                                wantedSize(capture.config)));
+    el("camera").disabled = true;
+    stream = await ltm.openPreferredCamera(el("camera"), CAMERA_KEY, wantedSize(capture.config));
     track = stream.getVideoTracks()[0];
+    capture.camera = track.label;
     const video = el("video");
     video.srcObject = stream;
     await video.play();
@@ -320,8 +324,10 @@ function fail(error) {
   ltm.banner("message", text, "error");
   el("start").disabled = false;
   el("stop").disabled = true;
+  el("camera").disabled = false;
 }
 
+ltm.listCameras(el("camera"), CAMERA_KEY, localStorage.getItem(CAMERA_KEY)).catch(() => null);
 el("start").addEventListener("click", start);
 el("stop").addEventListener("click", stop);
 window.addEventListener("resize", draw);
