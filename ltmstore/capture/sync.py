@@ -38,8 +38,10 @@ from ltmstore.capture.video import VideoReader, transfer_lut
 from ltmstore.core.errors import LtmError
 
 GRID = 6  # blocks per image side
-DEGREE = 5  # polynomial degree in (r, s): a cubic cannot follow a varnish highlight and biased
-# the offset (-0.44 frame on a simulated canvas with its true poses; -0.17 at degree 5)
+DEGREE = 6  # polynomial degree in (r, s): lower ones cannot follow a varnish highlight and bias
+# the offset (a simulated canvas with its true poses: -0.44 frame at degree 3, -0.17 at 5, +0.05)
+MIN_DEGREE = 3  # a video too short for DEGREE is fitted with fewer terms, down to this
+ROWS_PER_PARAM = 3  # frames the block fit needs per parameter at an offset
 DEFAULT_MAX_OFFSET = 3.0  # seconds searched either side
 MIN_R2 = 0.5  # fraction of the brightness variance the light path must explain
 MIN_CONTRAST = 0.3  # 1 - best residual / residual at the runner-up local minimum
@@ -64,11 +66,23 @@ def block_brightness(video: str | os.PathLike, transfer: str, *, grid: int = GRI
     return np.array(rows, dtype=np.float64), fps
 
 
-def _basis(r: np.ndarray, s: np.ndarray, z: np.ndarray, scale: tuple) -> np.ndarray:
-    """Polynomial of ``(r, s)`` up to :data:`DEGREE`, ``dz`` terms and the falloff ``z/d^3``."""
+def fit_degree(frames: int) -> int:
+    """The polynomial degree for a block fit over ``frames`` frames: :data:`DEGREE`, or the
+    highest from :data:`MIN_DEGREE` up that leaves :data:`ROWS_PER_PARAM` frames per parameter
+    (90 % of them, so offsets that overlap a little less are still fitted)."""
+    def params(d: int) -> int:
+        return (d + 1) * (d + 2) // 2 + 5  # the polynomial, three dz terms, falloff, constant
+
+    fits = [d for d in range(MIN_DEGREE, DEGREE + 1) if ROWS_PER_PARAM * params(d) <= 0.9 * frames]
+    return max(fits, default=MIN_DEGREE)
+
+
+def _basis(r: np.ndarray, s: np.ndarray, z: np.ndarray, scale: tuple,
+           degree: int = DEGREE) -> np.ndarray:
+    """Polynomial of ``(r, s)`` up to ``degree``, ``dz`` terms and the falloff ``z/d^3``."""
     (r0, rs), (s0, ss), (z0, zs) = scale
     u, v, w = (r - r0) / rs, (s - s0) / ss, (z - z0) / zs
-    cols = [u**i * v**j for i in range(DEGREE + 1) for j in range(DEGREE + 1 - i)]
+    cols = [u**i * v**j for i in range(degree + 1) for j in range(degree + 1 - i)]
     cols += [w, w * u, w * v]
     d2 = r * r + s * s + z * z
     cols.append(z / d2**1.5 / (1 / z0**2))
@@ -93,13 +107,15 @@ class OffsetCost:
                       (float(np.mean(poses.s)), float(np.ptp(poses.s)) / 2 or 1.0),
                       (float(np.median(z)), max(float(np.ptp(z)) / 2, 1e-3)))
         self.min_rows = int(MIN_OVERLAP * min(len(self.t), (tp[-1] - tp[0]) * fps))
-        self.n_params = _basis(np.zeros(1), np.zeros(1), np.ones(1), self.scale).shape[1] + 1
+        self.degree = fit_degree(int(min(len(self.t) - skip_frames, (tp[-1] - tp[0]) * fps)))
+        self.n_params = _basis(np.zeros(1), np.zeros(1), np.ones(1), self.scale,
+                               self.degree).shape[1] + 1
 
     def lights(self, tau: float) -> tuple[np.ndarray, np.ndarray | None]:
         """Frames of video B used at offset ``tau`` and the light ``(3, n)`` at each, or None
         when too few frames overlap the poses."""
         use = self.rows(tau)
-        if int(use.sum()) < max(self.min_rows, 3 * self.n_params):
+        if int(use.sum()) < max(self.min_rows, ROWS_PER_PARAM * self.n_params):
             return use, None
         u = self.t[use] - tau
         p = self.poses
@@ -137,7 +153,7 @@ class OffsetCost:
         n = int(use.sum())
         if light is None:
             return math.inf, n
-        a = np.column_stack([np.ones(n), _basis(*light, self.scale)])
+        a = np.column_stack([np.ones(n), _basis(*light, self.scale, self.degree)])
         y = self.y[use]
         coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         resid = y - a @ coef
@@ -214,6 +230,7 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
               "runner_up_s": None if runner is None else float(taus[runner]),
               "runner_up_r2": float(1 - runner_cost),
               "frames_used": used, "search_s": [-max_offset, max_offset], "grid": GRID,
+              "degree": cost.degree,
               "method": "brightness of video B against the tracked light path"}
     if result["r2"] < MIN_R2 or result["contrast"] < MIN_CONTRAST:
         raise LtmError(f"no usable signal for sync: the light path explains "
