@@ -179,8 +179,10 @@ def levenberg_marquardt(theta, toward, half, y, w, n_iter):  # pragma: no cover 
         _clip(theta[i])
         cost = _cost(theta[i], toward, half, y[i], w[i])
         lam = 1e-2
+        moved = True  # the normal equations are those of theta[i] until it moves
         for _ in range(n_iter):
-            _system(theta[i], toward, half, y[i], w[i], jtj, grad)
+            if moved:
+                _system(theta[i], toward, half, y[i], w[i], jtj, grad)
             for a in range(6):
                 for b in range(6):
                     system[a, b] = jtj[a, b]
@@ -193,7 +195,8 @@ def levenberg_marquardt(theta, toward, half, y, w, n_iter):  # pragma: no cover 
                 finite = finite and np.isfinite(step[a])
             _clip(trial)
             trial_cost = _cost(trial, toward, half, y[i], w[i])
-            if finite and trial_cost < cost:
+            moved = finite and trial_cost < cost
+            if moved:
                 theta[i, :] = trial
                 cost = trial_cost
                 lam /= 3

@@ -148,8 +148,10 @@ def levenberg_marquardt(theta, toward, half, g, y, w, n_iter):  # pragma: no cov
         _clip(theta[i])
         cost = _cost(theta[i], toward, half, g, y, w, i)
         lam = 1e-2
+        moved = True  # the normal equations are those of theta[i] until it moves
         for _ in range(n_iter):
-            _system(theta[i], toward, half, g, y, w, i, jtj, grad)
+            if moved:
+                _system(theta[i], toward, half, g, y, w, i, jtj, grad)
             for a in range(6):
                 for b in range(6):
                     system[a, b] = jtj[a, b]
@@ -162,7 +164,8 @@ def levenberg_marquardt(theta, toward, half, g, y, w, n_iter):  # pragma: no cov
                 finite = finite and np.isfinite(step[a])
             _clip(trial)
             trial_cost = _cost(trial, toward, half, g, y, w, i)
-            if finite and trial_cost < cost:
+            moved = finite and trial_cost < cost
+            if moved:
                 theta[i, :] = trial
                 cost = trial_cost
                 lam /= 3
