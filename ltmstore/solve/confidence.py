@@ -109,12 +109,15 @@ def flag_unsupported(samples: np.ndarray, geometry: Geometry, *, min_cells: int 
     ndarray of bool, shape (n,)
     """
     mask = np.isfinite(np.asarray(samples))
-    k = mask.reshape(len(mask), -1).sum(axis=1)
-    dist = _distances(mask, geometry)
-    flags = (k < min_cells) | ((dist <= radius).mean(axis=1) < min_coverage)
+    flat = mask.reshape(len(mask), -1)
+    # judged once per distinct mask (a handheld tile's pixels share one)
+    _, first, inverse = np.unique(np.packbits(flat, axis=1), axis=0, return_index=True,
+                                  return_inverse=True)
+    dist = _distances(mask[first], geometry)
+    flags = (flat[first].sum(axis=1) < min_cells) | ((dist <= radius).mean(axis=1) < min_coverage)
     if max_gap is not None:
         flags |= dist.max(axis=1) > max_gap
-    return flags
+    return flags[inverse.ravel()]
 
 
 def expected_error(samples: np.ndarray, geometry: Geometry, method: str | Method, *,
