@@ -22,6 +22,7 @@ from pipeline_helpers import run_ltm
 
 from ltmstore.capture.acquisition import load_acquisition, load_poses
 from ltmstore.core.dims import Plane
+from ltmstore.stages.phone import LOCK_ADVICE
 
 
 @pytest.fixture(scope="module")
@@ -166,10 +167,12 @@ def test_shown_coverage_is_what_reconstruct_counts(captured, reconstructed):
     """The folder syncs, ingests and reconstructs, and K, M, K/M phone A's page shows are those
     ``ltm reconstruct`` records."""
     steps, store = reconstructed
-    if "a fixed exposure cannot explain" in steps["ingest"].stderr:
+    if steps["ingest"].returncode == 2 and LOCK_ADVICE in steps["ingest"].stderr:
         # Chromium's fake camera plays its file on a timer that stalls on a loaded machine: its
-        # frames then no longer follow the light path, and ingest rightly refuses them (misfit
-        # 1.7-3.9 % under load in CI and here; idle it passed every run). Not a pass: an xfail.
+        # frames then no longer follow the light path, and ingest rightly refuses them with its
+        # advice to lock exposure: a misfit a fixed exposure cannot explain (1.7-3.9 % under load
+        # in CI and here) or a drift it cannot measure (1.3 %, once, in the whole suite's run of
+        # 2026-11-27). Run alone, it passed every time. Not a pass: an xfail.
         pytest.xfail("camera B's fake camera stalled under load: " + steps["ingest"].stderr)
     for name, proc in steps.items():
         assert proc.returncode == 0, (name, proc.stderr[-2000:])
