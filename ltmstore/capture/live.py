@@ -572,8 +572,9 @@ def painting_trackers(image: str | os.PathLike, width: float, intr: Intrinsics,
     def make(size: tuple[int, int]) -> Tracker:
         return pt.PaintingTracker(painting, scaled_intrinsics(intr, size), config).track_frame
 
-    def run(video: Path, size: tuple[int, int]) -> list[FramePose]:  # as `ltm track`: shutter
+    def run(video: Path, size: tuple[int, int]) -> list[FramePose]:
+        # as `ltm track`: the shutter time estimated (None) for the motion-blurred map
         return pt.track_painting_video(video, painting, scaled_intrinsics(intr, size), config,
-                                       shutter_s=None, progress=False)  # time estimated
+                                       shutter_s=None, progress=False)
 
     return make, run

@@ -66,14 +66,18 @@ def block_brightness(video: str | os.PathLike, transfer: str, *, grid: int = GRI
     return np.array(rows, dtype=np.float64), fps
 
 
+def n_params(degree: int) -> int:
+    """Parameters of the block fit: the constant and the columns of :func:`_basis` (the
+    polynomial, three ``dz`` terms, the falloff)."""
+    return 1 + (degree + 1) * (degree + 2) // 2 + 3 + 1
+
+
 def fit_degree(frames: int) -> int:
     """The polynomial degree for a block fit over ``frames`` frames: :data:`DEGREE`, or the
     highest from :data:`MIN_DEGREE` up that leaves :data:`ROWS_PER_PARAM` frames per parameter
     (90 % of them, so offsets that overlap a little less are still fitted)."""
-    def params(d: int) -> int:
-        return (d + 1) * (d + 2) // 2 + 5  # the polynomial, three dz terms, falloff, constant
-
-    fits = [d for d in range(MIN_DEGREE, DEGREE + 1) if ROWS_PER_PARAM * params(d) <= 0.9 * frames]
+    fits = [d for d in range(MIN_DEGREE, DEGREE + 1)
+            if ROWS_PER_PARAM * n_params(d) <= 0.9 * frames]
     return max(fits, default=MIN_DEGREE)
 
 
@@ -106,10 +110,10 @@ class OffsetCost:
         self.scale = ((float(np.mean(poses.r)), float(np.ptp(poses.r)) / 2 or 1.0),
                       (float(np.mean(poses.s)), float(np.ptp(poses.s)) / 2 or 1.0),
                       (float(np.median(z)), max(float(np.ptp(z)) / 2, 1e-3)))
-        self.min_rows = int(MIN_OVERLAP * min(len(self.t), (tp[-1] - tp[0]) * fps))
-        self.degree = fit_degree(int(min(len(self.t) - skip_frames, (tp[-1] - tp[0]) * fps)))
-        self.n_params = _basis(np.zeros(1), np.zeros(1), np.ones(1), self.scale,
-                               self.degree).shape[1] + 1
+        pose_frames = (tp[-1] - tp[0]) * fps
+        self.min_rows = int(MIN_OVERLAP * min(len(self.t), pose_frames))
+        self.degree = fit_degree(int(min(len(self.t) - skip_frames, pose_frames)))
+        self.n_params = n_params(self.degree)
 
     def lights(self, tau: float) -> tuple[np.ndarray, np.ndarray | None]:
         """Frames of video B used at offset ``tau`` and the light ``(3, n)`` at each, or None

@@ -20,6 +20,7 @@ from scipy import ndimage
 
 from ltmstore.core.errors import LtmError
 from ltmstore.solve import Geometry, Method
+from ltmstore.solve.masks import group_by_mask
 from ltmstore.solve.validate import heldout_error, observed_range
 
 MIN_CELLS = 8  # below this many observed cells no smooth LTF model is determined
@@ -109,15 +110,18 @@ def flag_unsupported(samples: np.ndarray, geometry: Geometry, *, min_cells: int 
     ndarray of bool, shape (n,)
     """
     mask = np.isfinite(np.asarray(samples))
-    flat = mask.reshape(len(mask), -1)
-    # judged once per distinct mask (a handheld tile's pixels share one)
-    _, first, inverse = np.unique(np.packbits(flat, axis=1), axis=0, return_index=True,
-                                  return_inverse=True)
-    dist = _distances(mask[first], geometry)
-    flags = (flat[first].sum(axis=1) < min_cells) | ((dist <= radius).mean(axis=1) < min_coverage)
+    flags = np.zeros(len(mask), dtype=bool)
+    groups = list(group_by_mask(mask))  # judged once per distinct mask (a handheld tile: one)
+    if not groups:
+        return flags
+    cells = np.stack([c for c, _ in groups])
+    dist = _distances(cells.reshape(len(groups), *mask.shape[1:]), geometry)
+    judged = (cells.sum(axis=1) < min_cells) | ((dist <= radius).mean(axis=1) < min_coverage)
     if max_gap is not None:
-        flags |= dist.max(axis=1) > max_gap
-    return flags[inverse.ravel()]
+        judged |= dist.max(axis=1) > max_gap
+    for flag, (_, rows) in zip(judged, groups, strict=True):
+        flags[rows] = flag
+    return flags
 
 
 def expected_error(samples: np.ndarray, geometry: Geometry, method: str | Method, *,
