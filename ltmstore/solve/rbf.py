@@ -56,13 +56,19 @@ def interpolate(points: np.ndarray, sources: np.ndarray, values: np.ndarray,
 
 
 def _spacing(points: np.ndarray) -> float:
-    """Median distance between neighbouring points (the natural RBF length scale)."""
+    """Median distance between neighbouring points (the natural RBF length scale), kept per
+    set of points (every fold and tile of a capture interpolates over the same lattice)."""
     from scipy.spatial import cKDTree
 
     if len(points) < 2:
         return 1.0
-    dist, _ = cKDTree(points).query(points, k=2)
-    return float(np.median(dist[:, 1])) or 1.0
+    key = hashlib.sha1(np.ascontiguousarray(points).tobytes()).hexdigest()
+    found = _SPACINGS.get(key)
+    if found is None:
+        dist, _ = cKDTree(points).query(points, k=2)
+        found = float(np.median(dist[:, 1])) or 1.0
+        _SPACINGS.put(key, found)
+    return found
 
 
 def _solve_in(points: np.ndarray, samples: np.ndarray, params: dict,
@@ -87,6 +93,7 @@ def _fit(points: np.ndarray, params: dict, at: np.ndarray | None, cells: np.ndar
 
 CACHED_OPERATORS = 8  # masks whose operator a process keeps (each M x K float32)
 _OPERATORS = Recent(CACHED_OPERATORS)
+_SPACINGS = Recent(CACHED_OPERATORS)  # lattices' spacings (a float each)
 
 
 def _key(points: np.ndarray, cells: np.ndarray, params: dict) -> tuple:
