@@ -120,6 +120,26 @@ def test_uncorrectable_drift_is_refused(long_capture, short_capture, tmp_path):
     assert not (tmp_path / "short.zarr").exists()
 
 
+def test_a_user_who_locked_the_exposure_is_not_turned_away(short_capture, tmp_path):
+    """A drift the path cannot measure (9 s, 25 % exposure wave: the refusal above) is refused
+    with one line that names ``--exposure-locked``; with it, the user's word is taken: the
+    store is made, the frames left uncorrected, and the record says so."""
+    from pipeline_helpers import run_ltm
+
+    frames, fps = read_linear(short_capture)
+    gains = drift_gains(len(frames), fps, exposure=0.25, white_balance=0.0)
+    folder = write_variant(short_capture, tmp_path / "short", frames * gains[:, None, None], fps)
+    refused = run_ltm("ingest", folder, tmp_path / "refused.zarr")
+    assert refused.returncode == 2, refused.stderr
+    assert refused.stderr.count("\n") == 1 and "--exposure-locked" in refused.stderr
+    assert not (tmp_path / "refused.zarr").exists()
+    taken = run_ltm("ingest", folder, tmp_path / "locked.zarr", "--exposure-locked")
+    assert taken.returncode == 0, taken.stderr
+    drift = json.loads(taken.stdout)["drift"]
+    assert drift["exposure_locked"] and not drift["corrected"], drift
+    assert drift["stderr_data_log_gain"] > 0.02, drift  # what made it unmeasurable
+
+
 def test_room_light_is_measured_in_the_lead_and_removed(long_capture, clean_long, tmp_path):
     frames, fps = read_linear(long_capture)
     ambient = room_light(frames, 0.3)
@@ -262,3 +282,11 @@ def test_a_drift_the_data_cannot_measure_is_not_taken_as_locked():
     assert gains is None and not record["corrected"]
     gains, record = _drift_decision(estimate(0.8 * DRIFT_MIN, 0.29))  # negligible
     assert gains is None and not record["corrected"]
+    # the user says it was locked: left uncorrected, not refused; a measured drift still
+    # corrected, and a factor-4 change still refused
+    gains, record = _drift_decision(estimate(0.057, 0.29), exposure_locked=True)
+    assert gains is None and record["exposure_locked"] and not record["corrected"]
+    gains, record = _drift_decision(estimate(0.2, 0.01), exposure_locked=True)
+    assert gains is not None and record["corrected"] and "exposure_locked" not in record
+    with pytest.raises(LtmError, match="factor"):
+        _drift_decision(estimate(1.0, 0.01), exposure_locked=True)

@@ -64,6 +64,10 @@ def register(sub) -> None:
     p.add_argument("--allow-dropped-frames", action="store_true",
                    help="leave out damaged or missing video frames (counted and reported) "
                    "instead of failing")
+    p.add_argument("--exposure-locked", action="store_true",
+                   help="camera B's exposure and white balance were locked: a drift of its "
+                   "brightness that the video cannot measure is left uncorrected instead of "
+                   "refused (a measured one is still corrected, auto exposure still refused)")
     p.set_defaults(func=cmd_ingest)
 
     p = sub.add_parser("ingest-rti", help="classic RTI capture (images + .lp) -> store",
@@ -244,7 +248,8 @@ def cmd_ingest(a: argparse.Namespace) -> None:
     from ltmstore.stages.ingest import ingest
 
     print_json(ingest(a.acquisition, a.store, overwrite=a.overwrite,
-                      allow_dropped=a.allow_dropped_frames))
+                      allow_dropped=a.allow_dropped_frames,
+                      exposure_locked=a.exposure_locked))
 
 
 def cmd_ingest_rti(a: argparse.Namespace) -> None:

@@ -67,7 +67,7 @@ Z_TOLERANCE_FRACTION = 0.05
 def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: bool = False,
            z_tolerance: float | None = None, progress: bool = True,
            chunk_frames: int = DEFAULT_CHUNK_FRAMES, hashes: dict[str, str] | None = None,
-           allow_dropped: bool = False) -> dict:
+           allow_dropped: bool = False, exposure_locked: bool = False) -> dict:
     """Decode an acquisition folder's video and poses into a new store.
 
     Parameters
@@ -91,6 +91,11 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     allow_dropped : bool, default False
         Leave out damaged or missing video frames (counted as ``dropped_frames``) instead of
         failing (:class:`ltmstore.capture.video.VideoReader`).
+    exposure_locked : bool, default False
+        Camera B's exposure and white balance were locked: a drift of its gain that the video
+        cannot measure (a path that rarely comes back to the same places) is left uncorrected
+        instead of refused (recorded as ``drift.exposure_locked``); a measured one is still
+        corrected, and auto exposure still refused.
 
     Returns
     -------
@@ -128,7 +133,8 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
                     time_offset=acq.time_offset, view_plane=acq.view_plane)
     hashes = hashes or _sha256(acq)
     hashed = time.perf_counter()
-    corrections = _corrections(acq, rig, light, allow_dropped=allow_dropped)
+    corrections = _corrections(acq, rig, light, allow_dropped=allow_dropped,
+                               exposure_locked=exposure_locked)
     scanned = time.perf_counter()
     with VideoReader(acq.video, allow_dropped=allow_dropped) as video, new_store(
             store, overwrite=overwrite, inputs=(acq.folder, acq.video, acq.poses)) as group:
@@ -173,7 +179,7 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
 
 
 def _corrections(acq: Acquisition, rig: ViewRig | None, light: partial, *,
-                 allow_dropped: bool) -> Corrections | None:
+                 allow_dropped: bool, exposure_locked: bool) -> Corrections | None:
     """Camera B's corrections (:mod:`ltmstore.stages.phone`): a fixed camera's video is scanned
     once for the LED-off lead and gain drift; a moving camera's is only undistorted."""
     undistort = (None if acq.camera_calibration is None
@@ -187,7 +193,7 @@ def _corrections(acq: Acquisition, rig: ViewRig | None, light: partial, *,
     if undistort is not None and scan.head:
         undistort.check_size(scan.head[0], acq.video)
     return plan_corrections(scan, light(scan.index / scan.fps), acq.plane, undistort=undistort,
-                            lut=lut)
+                            lut=lut, exposure_locked=exposure_locked)
 
 
 def _judge_occlusion(lights: Lights, sink: FrameSink, rig: ViewRig | None) -> Lights:

@@ -120,8 +120,10 @@ class Corrections:
 
 
 def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
-                     undistort: Undistorter | None, lut: np.ndarray) -> Corrections:
-    """Decide the corrections of a scanned video (see the module docstring).
+                     undistort: Undistorter | None, lut: np.ndarray,
+                     exposure_locked: bool = False) -> Corrections:
+    """Decide the corrections of a scanned video (see the module docstring);
+    ``exposure_locked``: the user says camera B's exposure was locked (:func:`_drift_decision`).
 
     Raises
     ------
@@ -135,7 +137,7 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
     # A hand's shadow is no change of exposure: the frames ingest rejects as occluded stay out.
     lit = lit & ~occluded_frames(scan.brightness, lights.r, lights.s, lights.z, lit)
     drift = estimate_drift(scan.blocks, t, lights.r, lights.s, lights.z, lit, plane)
-    gains, drift_record = _drift_decision(drift)
+    gains, drift_record = _drift_decision(drift, exposure_locked=exposure_locked)
     per_frame = None if gains is None else dict(zip(scan.index.tolist(), gains, strict=True))
     ambient, ambient_record = _ambient(scan, lead, lit, gains, undistort, lut)
     record = {"undistort": None if undistort is None else undistort.to_json(),
@@ -143,7 +145,12 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
     return Corrections(undistort, per_frame, ambient, lead_end, record)
 
 
-def _drift_decision(drift: DriftEstimate | None) -> tuple[np.ndarray | None, dict]:
+def _drift_decision(drift: DriftEstimate | None, *,
+                    exposure_locked: bool = False) -> tuple[np.ndarray | None, dict]:
+    """Camera B's gains per frame (None: left unchanged) and the record of the decision. A
+    drift the data cannot measure is refused unless below :data:`DRIFT_MIN`, or unless the user
+    says the exposure was locked (``exposure_locked``: then it is left uncorrected, and the
+    record says why); a measured one is corrected either way."""
     if drift is None:
         return None, {"judged": False, "reason": "too few lit frames at known positions to judge",
                       "corrected": False}
@@ -162,13 +169,18 @@ def _drift_decision(drift: DriftEstimate | None) -> tuple[np.ndarray | None, dic
     measurable = determination <= MAX_DRIFT_STDERR
     if amplitude <= DRIFT_MIN or (amplitude <= record["threshold"] and measurable):
         return None, {**record, "corrected": False}
-    if span > MAX_DRIFT_SPAN or not measurable:
-        why = (f"changes by a factor {math.exp(span):.2f}, more than {math.exp(MAX_DRIFT_SPAN):g}"
-               if span > MAX_DRIFT_SPAN else
-               f"cannot be measured to better than {determination:.1%} (the light path comes "
-               "back to the same places too rarely)")
+    if span > MAX_DRIFT_SPAN:
         raise LtmError(f"camera B's exposure or white balance drifts during the capture (RMS "
-                       f"{amplitude:.1%}) and {why}; {LOCK_ADVICE}")
+                       f"{amplitude:.1%}) and changes by a factor {math.exp(span):.2f}, more "
+                       f"than {math.exp(MAX_DRIFT_SPAN):g}; {LOCK_ADVICE}")
+    if not measurable:
+        if exposure_locked:
+            return None, {**record, "corrected": False, "exposure_locked": True}
+        raise LtmError(f"camera B's exposure or white balance may drift during the capture (RMS "
+                       f"{amplitude:.1%}), and it cannot be measured to better than "
+                       f"{determination:.1%} (the light path comes back to the same places too "
+                       f"rarely); {LOCK_ADVICE}, or, if they were locked, ingest with "
+                       "--exposure-locked")
     gains = np.exp(drift.log_gain)
     lit = drift.lit
     channel_rms = np.sqrt(np.mean(drift.log_gain[lit] ** 2, axis=0))
