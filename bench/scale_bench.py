@@ -95,6 +95,10 @@ def main() -> None:
     parser.add_argument("--reuse", action="store_true",
                         help="keep the simulated, ingested scene in --work and reuse it when "
                              "there (reconstruct timed afresh; simulate_s, ingest_s left out)")
+    parser.add_argument("--subset-to", metavar="PATH",
+                        help="skip the truth (at Notre Dame-b 2560 full-frame renders, about "
+                             "40 min of one core) and save the LTM at its pixels to PATH "
+                             "(.npy): versions then compare bit for bit (scale_compare.py)")
     args = parser.parse_args()
     cfg = CONFIGS[args.config]
     work = Path(args.work) / args.config
@@ -109,7 +113,11 @@ def main() -> None:
         times["reconstruct_s"] = time.perf_counter() - start
     ltm = open_store(work / "store.zarr")["ltm"]
     sub = slice(SNR_STEP // 2, None, SNR_STEP)
-    snr = snr_db(truth_subset(cfg, sim["exposure"]), ltm[sub, sub].values)
+    if args.subset_to:
+        np.save(args.subset_to, ltm[sub, sub].values)
+        snr = None
+    else:
+        snr = snr_db(truth_subset(cfg, sim["exposure"]), ltm[sub, sub].values)
     result = {
         "config": args.config, "command": f"python bench/scale_bench.py --config {args.config}",
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
@@ -119,6 +127,7 @@ def main() -> None:
         "ltm_gb_float32": ltm.nbytes / 1e9, "timings": {**times, **info["timings"]},
         "seconds_per_pixel_solve": info["seconds_per_pixel"],
         "snr_y_db_pixel_subset": snr, "snr_pixels": f"[{SNR_STEP // 2}::{SNR_STEP}] x 2",
+        "ltm_subset": args.subset_to,
         "load_average_1min_end": os.getloadavg()[0],
         "methods_per_tile": info["methods_per_tile"],
         "peak_memory_gib_reconstruct": memory.peak / 2**30,

@@ -5,7 +5,9 @@ Run: ``python bench/scale_compare.py OLD_DIR [OLD_DIR ...] --new NEW_DIR [NEW_DI
 [--labels OLD NEW] [--out bench/results]``, where each directory holds the
 ``scale_<config>.json`` of one ``python bench/scale_bench.py --reuse --out DIR`` run (the old
 version's with ``PYTHONPATH`` on a ``git archive`` of its commit, run alternately with the new
-one on the same ingested scene). Writes ``scale_<config>_compare.json`` and ``.png``.
+one on the same ingested scene). Writes ``scale_<config>_compare.json`` and ``.png``. Runs made
+with ``--subset-to`` (no truth) are compared by their LTMs at the SNR pixels instead: whether
+every run's equals the first old run's bit for bit (``ltm_identical``).
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ import argparse
 import json
 import statistics
 from pathlib import Path
+
+import numpy as np
 
 STAGES = ("resample_s", "placement_s", "solve_s", "by_light_s")
 
@@ -54,8 +58,12 @@ def chart(results: dict, path: Path) -> None:
             bars.bar(i, value, bottom=bottom, color=f"C{j}", label=stage if i == 0 else None)
             bottom += value
         bars.text(i, bottom, f"{bottom:.0f} s", ha="center", va="bottom")
-        scatter.scatter(results[label]["reconstruct_s"], results[label]["snr_y_db"],
-                        label=label, s=40)
+        if None not in results[label]["snr_y_db"]:
+            scatter.scatter(results[label]["reconstruct_s"], results[label]["snr_y_db"],
+                            label=label, s=40)
+        else:  # no truth: the runs' LTMs compared with each other (ltm_identical)
+            scatter.scatter(results[label]["reconstruct_s"],
+                            [i] * len(results[label]["reconstruct_s"]), label=label, s=40)
     bars.set_xticks(range(len(labels)), labels)
     bars.set_ylabel("reconstruct, median (s)")
     bars.legend(fontsize=8)
@@ -82,6 +90,11 @@ def main() -> None:
               "machine": new[0]["machine"], "versions": results,
               "command": "python bench/scale_compare.py " + " ".join(args.old) + " --new "
                          + " ".join(args.new) + " --labels " + " ".join(args.labels)}
+    subsets = [run["ltm_subset"] for run in old + new if run.get("ltm_subset")]
+    if subsets:
+        first = np.load(subsets[0])
+        record["ltm_identical"] = all(np.array_equal(first, np.load(p), equal_nan=True)
+                                      for p in subsets[1:])
     (out / f"scale_{config}_compare.json").write_text(json.dumps(record, indent=2) + "\n")
     chart(results, out / f"scale_{config}_compare.png")
     print(json.dumps(results, indent=2))

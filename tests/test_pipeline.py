@@ -113,12 +113,17 @@ def test_lars_and_cs_agree_on_the_simulated_scene(flow_run, small_acquisition):
     assert snr["cs"] > snr["lars"] - 0.5, snr
 
 
-def test_plan_pads_shards_to_whole_inner_chunks():
+def test_plan_splits_the_lattice_into_whole_inner_chunks_where_it_can():
+    """Divisors of the lattice's sides where one is near (a shard of whole chunks: a tile's
+    write replaces it); a prime side is halved and its shard padded to whole inner chunks."""
     from ltmstore.stages.reconstruct import plan_tiles
 
     plan = plan_tiles((100, 70), (50, 50), tile=32, chunk_bytes=32 * 32 * 4 * 16)
-    assert plan.chunks == (32, 32, 4, 4) and plan.shards == (32, 32, 52, 52)
+    assert plan.chunks == (32, 32, 2, 5) and plan.shards == (32, 32, 50, 50)
     assert plan.block == (32, 32, 50, 50) and plan.n_tiles == 4 * 3
+    assert plan_tiles((1024, 1024), (32, 80)).chunks == (32, 32, 8, 16)  # 512 KiB
+    plan = plan_tiles((100, 70), (47, 47), tile=32, chunk_bytes=32 * 32 * 4 * 16)
+    assert plan.chunks == (32, 32, 3, 3) and plan.shards == (32, 32, 48, 48)
 
 
 def test_regularisation_and_confidence_are_chosen_and_stored(flow_run):
