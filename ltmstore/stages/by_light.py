@@ -5,10 +5,10 @@ split the lattice too, but a point light still touches every tile. Beside it, at
 reconstruction, the same values are written light-major as ``ltm_by_light`` (and
 ``ltm_cb_by_light``, ``ltm_cr_by_light`` for a colour LTM): dims and coordinates of ``ltm``,
 inner chunks of one lattice cell over the whole image (or over blocks of at most
-:data:`MAX_CHUNK_PIXELS` pixels), shards of the ``ltm``'s own lattice chunk. A point light then
-reads its 4 cells' planes (16 in 6D) and nothing else, and an area light only the cells it
-covers: :mod:`ltmstore.stages.relight` uses the copy whenever the store has one. The copy costs
-as many bytes as ``ltm`` itself.
+:data:`MAX_CHUNK_PIXELS` pixels, and of at most :data:`BAND_BYTES` per shard), shards of the
+``ltm``'s own lattice chunk. A point light then reads its 4 cells' planes (16 in 6D) and nothing
+else, and an area light only the cells it covers: :mod:`ltmstore.stages.relight` uses the copy
+whenever the store has one. The copy costs as many bytes as ``ltm`` itself.
 """
 
 from __future__ import annotations
@@ -83,7 +83,11 @@ def write_by_light(group: zarr.Group, name: str = LTM, *, client: Client | None 
     source = group[name]
     dims = source.metadata.dimension_names
     lattice_chunk = source.chunks[2:]
-    block = pixel_chunk(source.shape[:2])
+    # a target shard (the pixel block times ltm's lattice chunk) fits in a band: the band's
+    # bytes bound what a copying worker holds (a whole 1024 x 1024 px block of 8 x 16 cells
+    # would be 512 MB)
+    shard_pixels = band_bytes // (source.dtype.itemsize * math.prod(lattice_chunk))
+    block = pixel_chunk(source.shape[:2], max(1, min(MAX_CHUNK_PIXELS, shard_pixels)))
     chunks = (*block, *(1,) * len(lattice_chunk))
     shards = (*block, *lattice_chunk)
     target = st.create_variable(group, by_light_name(name), dims, source.shape, chunks=chunks,
