@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import warnings
 
@@ -54,9 +55,13 @@ def light_major_shard(store):
 
 def test_flipped_bytes_are_found_and_named(store):
     shard, light = light_major_shard(store)
+    array = open_group(store)["ltm_by_light"]
+    inner = math.prod(s // c for s, c in zip(array.shards, array.chunks, strict=True))
     data = bytearray(shard.read_bytes())
-    for i in range(16):  # spread over the shard's inner chunks (relight reads one)
-        data[(i + 1) * len(data) // 18] ^= 0xFF
+    # every inner chunk's bytes (relight reads a few of them), not the index at the shard's
+    # end (16 bytes per inner chunk and its CRC32C)
+    for i in range(0, len(data) - 16 * inner - 4, 61):
+        data[i] ^= 0xFF
     shard.write_bytes(bytes(data))
     key = shard.relative_to(store).as_posix()
     one_line_error(run_ltm("check", store), f"damaged: {store}/{key} fails its check "
