@@ -232,8 +232,16 @@ def test_page_says_enough_and_warns(tmp_path):
             state = page.evaluate("JSON.parse(JSON.stringify(window.ltmCapture))")
             assert state["placed"] == 10 and len(state["path"]) == 10  # the height ones drawn
             # but not counted: the 5 placed cells and the 4 the path crosses between them
-            # (bridged as ingest bridges camera B's frames between tracked positions)
-            assert len(state["coveredCells"]) == 9
+            # (bridged as ingest bridges camera B's frames between tracked positions, where
+            # they are at most LIVE_MAX_GAP_S apart: under the suite's load the fake camera's
+            # frames came further apart once, and 8 cells were covered, as they should be)
+            from ltmstore.capture.live import LIVE_MAX_GAP_S
+
+            times = [point[0] for point in state["path"][:5]]
+            if all(np.diff(times) <= LIVE_MAX_GAP_S):
+                page.wait_for("window.ltmCapture.coveredCells.length === 9", timeout=5)
+            else:
+                assert 5 <= len(state["coveredCells"]) < 9, (times, state["coveredCells"])
     finally:
         server.shutdown()
         server.server_close()
