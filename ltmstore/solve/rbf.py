@@ -55,6 +55,16 @@ def interpolate(points: np.ndarray, sources: np.ndarray, values: np.ndarray,
     return nearest_fill(points, sources, values)
 
 
+CACHED_OPERATORS = 8  # masks whose operator a process keeps (each M x K float32)
+_OPERATORS = Recent(CACHED_OPERATORS)
+_SPACINGS = Recent(CACHED_OPERATORS)  # lattices' spacings (a float each)
+
+
+def _digest(points: np.ndarray) -> str:
+    """A key of a set of points (the lattice's cells) for the caches above."""
+    return hashlib.sha1(np.ascontiguousarray(points).tobytes()).hexdigest()
+
+
 def _spacing(points: np.ndarray) -> float:
     """Median distance between neighbouring points (the natural RBF length scale), kept per
     set of points (every fold and tile of a capture interpolates over the same lattice)."""
@@ -62,7 +72,7 @@ def _spacing(points: np.ndarray) -> float:
 
     if len(points) < 2:
         return 1.0
-    key = hashlib.sha1(np.ascontiguousarray(points).tobytes()).hexdigest()
+    key = _digest(points)
     found = _SPACINGS.get(key)
     if found is None:
         dist, _ = cKDTree(points).query(points, k=2)
@@ -91,15 +101,9 @@ def _fit(points: np.ndarray, params: dict, at: np.ndarray | None, cells: np.ndar
     return interpolate(points if at is None else points[at], points[cells], values, **params)
 
 
-CACHED_OPERATORS = 8  # masks whose operator a process keeps (each M x K float32)
-_OPERATORS = Recent(CACHED_OPERATORS)
-_SPACINGS = Recent(CACHED_OPERATORS)  # lattices' spacings (a float each)
-
-
 def _key(points: np.ndarray, cells: np.ndarray, params: dict) -> tuple:
-    digest = hashlib.sha1(np.ascontiguousarray(points).tobytes())
-    digest.update(np.packbits(cells).tobytes())
-    return digest.hexdigest(), len(cells), tuple(sorted((k, repr(v)) for k, v in params.items()))
+    return (_digest(points), hashlib.sha1(np.packbits(cells).tobytes()).hexdigest(), len(cells),
+            tuple(sorted((k, repr(v)) for k, v in params.items())))
 
 
 def operator(points: np.ndarray, cells: np.ndarray, params: dict, *,
