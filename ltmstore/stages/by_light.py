@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import zarr
 
-from ltmstore.core import checksum
+from ltmstore.core import checksum, memory
 from ltmstore.core import store as st
 from ltmstore.core.dims import CHROMA_LTM, LTM
 
@@ -124,6 +124,7 @@ def bands(shape: tuple[int, ...], shards: tuple[int, ...],
 def copy_band(region: tuple[slice, ...], *, source: zarr.Array, target: zarr.Array) -> None:
     """Copy ``source[region]`` to ``target[region]`` (a region of whole target shards)."""
     target[region] = source[region]
+    memory.trim()  # the band leaves the heap before the next one is read
 
 
 def light_major(ds: xr.Dataset, name: str = LTM) -> xr.DataArray:
