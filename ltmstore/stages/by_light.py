@@ -122,9 +122,12 @@ def bands(shape: tuple[int, ...], shards: tuple[int, ...],
 
 
 def copy_band(region: tuple[slice, ...], *, source: zarr.Array, target: zarr.Array) -> None:
-    """Copy ``source[region]`` to ``target[region]`` (a region of whole target shards)."""
+    """Copy ``source[region]`` to ``target[region]`` (a region of whole target shards), with the
+    process's freed heap given back before and after (:func:`~ltmstore.core.memory.trim`): the
+    tiles' temporaries a worker kept, then the band's."""
+    memory.trim()
     target[region] = source[region]
-    memory.trim()  # the band leaves the heap before the next one is read
+    memory.trim()
 
 
 def light_major(ds: xr.Dataset, name: str = LTM) -> xr.DataArray:
