@@ -96,10 +96,10 @@ def test_the_local_cluster_workers_keep_glibcs_own_memory_thresholds():
 
 def test_a_task_gives_its_freed_heap_back_to_the_system():
     """Without Dask's trim threshold a worker's freed heap stays resident (the tiles'
-    temporaries carried into the light-major copy); ``memory.trim``, called around each band of
-    the copy, gives it back. A fresh process frees 256 MiB of small blocks below one it keeps
-    (so the heap cannot shrink by itself): its resident memory falls by all of them (0 MiB
-    without the trim)."""
+    temporaries carried into the next tile and the light-major copy); ``memory.trim``, called
+    after each tile and around each band of the copy, gives it back. A fresh process frees
+    256 MiB of small blocks below one it keeps (so the heap cannot shrink by itself): its
+    resident memory falls by all of them (0 MiB without the trim)."""
     script = ("import psutil\nfrom ltmstore.core import memory\n"
               "blocks = [bytearray(64 << 10) for _ in range(4096)]\n"
               "keep = blocks[-1]\n"

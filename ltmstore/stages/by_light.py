@@ -123,8 +123,7 @@ def bands(shape: tuple[int, ...], shards: tuple[int, ...],
 
 def copy_band(region: tuple[slice, ...], *, source: zarr.Array, target: zarr.Array) -> None:
     """Copy ``source[region]`` to ``target[region]`` (a region of whole target shards), with the
-    process's freed heap given back before and after (:func:`~ltmstore.core.memory.trim`): the
-    tiles' temporaries a worker kept, then the band's."""
+    process's freed heap given back before and after (:func:`~ltmstore.core.memory.trim`)."""
     memory.trim()
     target[region] = source[region]
     memory.trim()

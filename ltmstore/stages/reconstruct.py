@@ -19,7 +19,7 @@ import numpy as np
 import zarr
 from tqdm.auto import tqdm
 
-from ltmstore.core import checksum
+from ltmstore.core import checksum, memory
 from ltmstore.core import store as st
 from ltmstore.core.dims import (
     CHROMA_CHANNELS,
@@ -144,6 +144,7 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     record = {"seconds": time.perf_counter() - start, "method": label, "tile": [int(ty), int(tx)],
               "params": choice.params, "heldout": choice.errors, "method_error": method_error}
     out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
+    memory.trim()  # the tile's temporaries leave the worker's heap
     result = np.empty((1, 1), dtype=object)
     result[0, 0] = record
     return result
