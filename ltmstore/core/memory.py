@@ -5,7 +5,7 @@ A local cluster's workers run with glibc's own memory thresholds (see
 being mapped afresh, which is faster). Freed heap pages then stay resident: a worker carried its
 tiles' heap from one tile into the next and into the light-major copy, where each band adds
 hundreds of MB. The heap is trimmed after each pixel tile and around each band of the copy (a
-few milliseconds each; a tile's solve costs the same with it, within 3 %).
+few milliseconds each; a tile's solve costs the same with it, within 5 %).
 """
 
 from __future__ import annotations
