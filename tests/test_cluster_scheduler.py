@@ -87,11 +87,7 @@ def test_the_local_cluster_workers_keep_glibcs_own_memory_thresholds():
               "        env = c.run(lambda: [os.environ.get(k) for k in\n"
               "                             ('MALLOC_TRIM_THRESHOLD_', 'OMP_NUM_THREADS')])\n"
               "    print(list(env.values()))\n")
-    env = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"}
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=120, env=env)
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip().splitlines()[-1] == "[[None, '1']]"
+    assert _fresh_process(script, timeout=120).strip().splitlines()[-1] == "[[None, '1']]"
 
 
 def test_a_task_gives_its_freed_heap_back_to_the_system():
@@ -107,10 +103,16 @@ def test_a_task_gives_its_freed_heap_back_to_the_system():
               "before = psutil.Process().memory_info().rss\n"
               "trimmed = memory.trim()\n"
               "print(trimmed, (before - psutil.Process().memory_info().rss) >> 20)\n")
-    env = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"}
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=60, env=env)
-    assert proc.returncode == 0, proc.stderr
-    trimmed, freed_mib = proc.stdout.split()
+    trimmed, freed_mib = _fresh_process(script, timeout=60).split()
     assert trimmed == "True"  # glibc, as on every machine this runs on
     assert int(freed_mib) >= 240
+
+
+def _fresh_process(script: str, *, timeout: float) -> str:
+    """The standard output of ``script`` run by a fresh Python (as ``ltm`` starts), without a
+    MALLOC_TRIM_THRESHOLD_ of this process's environment; it must exit 0."""
+    env = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"}
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=timeout, env=env)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout
