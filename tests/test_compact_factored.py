@@ -45,12 +45,26 @@ def test_factored_ltm_equals_the_dense_one_within_its_recorded_snr(factored_stor
     assert ds["ltm"].chunks is not None  # lazy (Dask), derived from the factors
     measured = snr_db(dense["ltm"].values, ds["ltm"].values)
     assert measured == pytest.approx(info["snr_db"], abs=0.01)
-    assert 50.0 <= info["snr_db"] < 51.5  # measured 50.53 dB at the 50 dB default target
-    assert info["ranks"]["ltm"]["max"] <= 26  # measured 4 tiles of ranks 19-24 of 256 cells
+    assert 41.0 <= info["snr_db"] < 42.0  # measured 41.39 dB by the default held-out rule
+    assert info["ranks"]["ltm"]["max"] <= 15  # measured 4 tiles of ranks 9-14 of 256 cells
     np.testing.assert_allclose(ds["ltm_by_light"].values, ds["ltm"].values, rtol=1e-5,
                                atol=1e-7)  # the same product, summed in another order
     recorded = store_summary(store)["compact"]
     assert recorded["form"] == "factored" and recorded["snr_db"] == info["snr_db"]
+    assert recorded["heldout_fraction"] == 0.3 and "target_db" not in recorded
+
+
+def test_the_factors_lose_little_against_the_truth(factored_store, small_store,
+                                                   small_acquisition):
+    """The held-out rule leaves out less than the model's own error: against the simulation's
+    truth the factors lose little (fraction**2 of it: 0.37 dB at 0.3). A rule that cuts into
+    the signal fails this: a fraction of 0.5 (ranks 7-10) lost 0.94 dB, 0.6 lost 1.33 dB."""
+    from ltmstore.judge.evaluate import compare_stores
+
+    truth = small_acquisition / "truth.zarr"
+    dense = compare_stores(small_store, truth)["snr_y_db"]
+    found = compare_stores(factored_store[0], truth)["snr_y_db"]
+    assert dense - 0.35 < found <= dense  # measured 29.81 against 30.10 dB
 
 
 def test_tiles_that_do_not_divide_the_image_read_back(small_store, tmp_path):
@@ -78,9 +92,9 @@ def test_factors_take_fewer_bytes_than_the_dense_ltm(factored_store, small_store
 def test_relight_from_the_factors_matches_the_dense_store(factored_store, small_store):
     store, info = factored_store
     expected, found = relight(small_store, LIGHTS).values, relight(store, LIGHTS).values
-    assert snr_db(expected, found) > 54.5  # measured 55.29 dB (recorded ltm: 50.53 dB)
+    assert snr_db(expected, found) > 42.5  # measured 43.16 dB (recorded ltm: 41.39 dB)
     area = disk_light(open_store(store)["ltm"], (0.0, 0.0), 0.08)
-    assert snr_db(relight(small_store, area).values, relight(store, area).values) > 70.0  # 72.8
+    assert snr_db(relight(small_store, area).values, relight(store, area).values) > 59.0  # 59.7
 
 
 def test_a_damaged_factor_chunk_is_refused_by_check_and_relight(factored_store, tmp_path):
@@ -134,12 +148,12 @@ def test_a_colour_ltm_is_factored_and_relights_in_colour(colour_store, tmp_path)
     from ltmstore.stages.compact import compact
 
     store = shutil.copytree(colour_store, tmp_path / "store.zarr", copy_function=os.link)
-    info = compact(store, form="factored", tile=8)
+    info = compact(store, form="factored", tile=8, target_db=50.0)
     assert set(info["ranks"]) == {"ltm", "ltm_cb", "ltm_cr"}
     dense, ds = open_store(colour_store), open_store(store)
     for name in ("ltm", "ltm_cb", "ltm_cr"):
         assert name not in os.listdir(store)
-        assert snr_db(dense[name].values, ds[name].values) > 50.0  # the 50 dB default target
+        assert snr_db(dense[name].values, ds[name].values) > 50.0  # the 50 dB target
     expected, found = relight(colour_store, LIGHTS).values, relight(store, LIGHTS).values
     assert found.shape == expected.shape and found.shape[-1] == 3
     assert snr_db(expected, found) > 52.5  # measured 53.0 dB (ltm 50.9 dB, 9 tiles each)

@@ -165,13 +165,13 @@ def register(sub) -> None:
                    help="stored LTM precision (default: %(default)s, lossless)")
     p.add_argument("--form", choices=("dense", "factored"), default="dense",
                    help="dense: the LTM array; factored: per 32 x 32 pixel tile a basis over "
-                   "the lattice cells and per-pixel weights, at the least rank that keeps "
-                   "--target-snr in every tile (lossy, much smaller; its SNR against the dense "
-                   "float32 LTM is measured and printed; relights from the factors) "
-                   "(default: %(default)s)")
-    p.add_argument("--target-snr", type=number, default=50.0, metavar="DB",
-                   help="factored form: least SNR in dB of every pixel tile against the dense "
-                   "LTM (default: %(default)s)")
+                   "the lattice cells and per-pixel weights, at the least rank that misses the "
+                   "dense LTM by at most 0.3 of the model's held-out error in that tile (lossy, "
+                   "much smaller; its SNR against the dense float32 LTM is measured and "
+                   "printed; relights from the factors) (default: %(default)s)")
+    p.add_argument("--target-snr", type=number, default=None, metavar="DB",
+                   help="factored form: instead, the least SNR in dB of every pixel tile "
+                   "against the dense LTM")
     p.add_argument("--keep-frames", action="store_true", help="keep frames and frame_chroma")
     p.set_defaults(func=cmd_compact)
 
@@ -372,7 +372,8 @@ def cmd_compact(a: argparse.Namespace) -> None:
     info = compact(a.store, precision=a.precision, keep_frames=a.keep_frames, form=a.form,
                    target_db=a.target_snr)
     mb = 1e6
-    form = (f" factored (ranks {info['ranks']['ltm']['min']}-{info['ranks']['ltm']['max']} per "
+    ranks = info.get("ranks", {}).get("ltm", {})
+    form = (f" factored (ranks {ranks['min']}-{ranks['max']}, mean {ranks['mean']:.1f}, per "
             f"{info['tile']} x {info['tile']} tile, {info['factor_bytes'] / 1e6:.1f} MB in place "
             f"of {info['dense_bytes'] / 1e6:.1f} MB)" if a.form == "factored" else "")
     what = [f"ltm{form} {info['precision']}" + (f" (SNR {info['snr_db']:.1f} dB against float32)"

@@ -35,6 +35,7 @@ import os
 import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -42,9 +43,10 @@ import zarr
 
 from ltmstore.core import checksum, factored
 from ltmstore.core import store as st
-from ltmstore.core.dims import FRAME_CHROMA, FRAMES
+from ltmstore.core.dims import EXPECTED_ERROR, FRAME_CHROMA, FRAMES, LTM, SAMPLES
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
+from ltmstore.solve.validate import observed_range
 from ltmstore.stages.by_light import LTM_NAMES, write_by_light
 
 PRECISIONS = {"float32": np.float32, "float16": np.float16}
@@ -59,8 +61,7 @@ def store_bytes(path: str | os.PathLike) -> int:
 
 def compact(path: str | os.PathLike, *, precision: str = "float32",
             keep_frames: bool = False, form: str = "dense",
-            target_db: float = factored.DEFAULT_TARGET_DB,
-            tile: int = factored.DEFAULT_TILE) -> dict:
+            target_db: float | None = None, tile: int = factored.DEFAULT_TILE) -> dict:
     """Recompress the LTM of a reconstructed store and drop its frames, atomically.
 
     Parameters
@@ -76,9 +77,12 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
     form : {"dense", "factored"}
         ``factored``: a basis per pixel tile and per-pixel weights in ``precision``, in place of
         the dense LTM (lossy: ``snr_db`` is measured against the dense float32 LTM).
-    target_db : float
+    target_db : float, optional
         The factored form's least SNR (dB) in every pixel tile, before rounding to
-        ``precision``.
+        ``precision``. None (the default): each tile's rank misses its dense LTM by at most
+        :data:`ltmstore.core.factored.HELDOUT_FRACTION` of the model's held-out error there
+        (the stored ``expected_error``; a colour LTM loses the same fraction of its energy as
+        the luminance of its tile).
     tile : int
         The factored form's pixel tile side.
 
@@ -87,13 +91,14 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
     dict
         ``bytes_before``, ``bytes_after``, ``precision``, ``form``, ``snr_db`` (None when
         lossless), ``frames_dropped``, ``seconds``; for the factored form also ``tile``,
-        ``target_db`` and ``ranks`` (min, mean, max over tiles, per LTM variable).
+        ``target_db`` or ``heldout_fraction`` (the rank rule) and ``ranks`` (min, mean, max
+        over tiles, per LTM variable).
     """
     if precision not in PRECISIONS:
         raise LtmError(f"precision {precision!r} must be one of {', '.join(PRECISIONS)}")
     if form not in FORMS:
         raise LtmError(f"form {form!r} must be one of {', '.join(FORMS)}")
-    if form == "factored" and not (0 < target_db < 150 and tile >= 1):
+    if form == "factored" and not ((target_db is None or 0 < target_db < 150) and tile >= 1):
         raise LtmError(f"target SNR {target_db!r} dB must lie in (0, 150), tile {tile!r} >= 1")
     path = Path(os.path.abspath(path))
     group = st.open_group(path, mode="r")
@@ -196,7 +201,7 @@ def _rewrite(src: zarr.Array, group: zarr.Group, name: str, dtype) -> tuple[floa
 
 
 
-def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: float,
+def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: float | None,
                  tile: int) -> dict:
     """Replace every LTM variable of the linked copy ``side`` by its factors
     (:mod:`ltmstore.core.factored`); drop its light-major copy."""
@@ -204,13 +209,20 @@ def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: floa
     target = zarr.open_group(str(side), mode="r+", zarr_format=3)
     signal = noise = 0.0
     ranks, stored = {}, {"dense_bytes": 0, "factor_bytes": 0}
+    kept = {}  # per tile: the fraction of its luminance energy the factors may leave out
     for name in LTM_NAMES:
         if name not in source:
             continue
         if len(source[name].shape) != 4:
             raise LtmError(f"the factored form holds a 4D ltm (y, x, r, s); this store's "
                            f"{name} has dims {source[name].metadata.dimension_names}")
-        s, n, ranks[name] = _write_factors(source[name], target, name, dtype, target_db, tile)
+        if target_db is not None:
+            budget = partial(_target_budget, target_db)
+        elif name == LTM:
+            budget = partial(_heldout_budget, *_heldout_inputs(source, path), kept)
+        else:  # a colour LTM leaves out as much of its energy as the luminance of its tile
+            budget = partial(_luma_fraction, kept)
+        s, n, ranks[name] = _write_factors(source[name], target, name, dtype, budget, tile)
         signal, noise = signal + s, noise + n
         stored["factor_bytes"] += sum(store_bytes(side / n) for n in (
             factored.weights_name(name), factored.basis_name(name)))
@@ -221,14 +233,48 @@ def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: floa
     for name in drop:
         shutil.rmtree(side / name, ignore_errors=True)
     snr = 10 * np.log10(signal / noise) if noise > 0 else float("inf")
-    return {"snr_db": float(snr), "dropped": drop, "tile": tile, "target_db": target_db,
-            "ranks": ranks, **stored}
+    rule = ({"target_db": target_db} if target_db is not None
+            else {"heldout_fraction": factored.HELDOUT_FRACTION})
+    return {"snr_db": float(snr), "dropped": drop, "tile": tile, **rule, "ranks": ranks,
+            **stored}
 
 
-def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, target_db: float,
+def _heldout_inputs(group: zarr.Group, path: Path) -> tuple[zarr.Array, zarr.Array]:
+    """The store's per-pixel expected error and samples, from which the held-out rule sets
+    each tile's rank; refused when the store lacks them."""
+    missing = [n for n in (EXPECTED_ERROR, SAMPLES) if n not in group]
+    if missing:
+        raise LtmError(f"store {str(path)!r} has no {missing[0]} to set the factors' ranks "
+                       "from the held-out error; give --target-snr DB")
+    return group[EXPECTED_ERROR], group[SAMPLES]
+
+
+def _target_budget(target_db: float, corner: tuple[int, int], values: np.ndarray) -> float:
+    return factored.target_budget(values, target_db)
+
+
+def _heldout_budget(error: zarr.Array, samples: zarr.Array, kept: dict,
+                    corner: tuple[int, int], values: np.ndarray) -> float:
+    """:func:`ltmstore.core.factored.heldout_budget` of the tile at ``corner``: the stored
+    expected error (relative to the observed range) times the range of its samples."""
+    where = tuple(slice(c, c + n) for c, n in zip(corner, values.shape[:2], strict=True))
+    batch = np.asarray(samples[where]).reshape(-1, *samples.shape[2:])
+    rms = np.asarray(error[where], np.float64).ravel() * observed_range(batch)
+    allowed = factored.heldout_budget(rms, int(np.prod(values.shape[2:])))
+    total = float(np.sum(np.asarray(values, np.float64) ** 2))
+    kept[corner] = allowed / total if total > 0 else 0.0
+    return allowed
+
+
+def _luma_fraction(kept: dict, corner: tuple[int, int], values: np.ndarray) -> float:
+    return kept.get(corner, 0.0) * float(np.sum(np.asarray(values, np.float64) ** 2))
+
+
+def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
                    tile: int) -> tuple[float, float, dict]:
-    """Factor ``src`` tile by tile and write ``{name}_weights`` and ``{name}_basis``; return the
-    sums of squares of the values and of the stored factors' error, and the ranks used."""
+    """Factor ``src`` tile by tile (the left-out energy at most ``budget(corner, values)``) and
+    write ``{name}_weights`` and ``{name}_basis``; return the sums of squares of the values and
+    of the stored factors' error, and the ranks used."""
     ny, nx, *cells = src.shape
     corners = list(itertools.product(range(0, ny, tile), range(0, nx, tile)))
 
@@ -238,7 +284,8 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, target_
         if not np.isfinite(values).all():
             raise LtmError(f"{name} holds non-finite values in the tile at y={y0}, x={x0}: the "
                            "factored form needs a finite ltm")
-        w, b = factor_tile_stored(values, target_db, dtype)
+        w, b = factored.factor_tile(values, budget(corner, values))
+        w, b = w.astype(dtype), b.astype(dtype)
         error = values.astype(np.float64) - np.tensordot(w.astype(np.float32),
                                                          b.astype(np.float32), axes=1)
         return w, b, float(np.sum(values.astype(np.float64) ** 2)), float(np.sum(error ** 2))
@@ -257,12 +304,6 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, target_
     used = [p[0].shape[2] for p in parts.values()]
     return (sum(p[2] for p in parts.values()), sum(p[3] for p in parts.values()),
             {"min": min(used), "mean": float(np.mean(used)), "max": rank})
-
-
-def factor_tile_stored(values: np.ndarray, target_db: float, dtype) -> tuple:
-    """:func:`ltmstore.core.factored.factor_tile` in the stored precision ``dtype``."""
-    w, b = factored.factor_tile(values, target_db)
-    return w.astype(dtype), b.astype(dtype)
 
 
 def _create_factors(group: zarr.Group, name: str, src: zarr.Array, dtype, tile: int,
