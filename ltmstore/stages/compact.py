@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 import zarr
+from tqdm import tqdm
 
 from ltmstore.core import checksum, factored
 from ltmstore.core import store as st
@@ -61,7 +62,8 @@ def store_bytes(path: str | os.PathLike) -> int:
 
 def compact(path: str | os.PathLike, *, precision: str = "float32",
             keep_frames: bool = False, form: str = "dense",
-            target_db: float | None = None, tile: int = factored.DEFAULT_TILE) -> dict:
+            target_db: float | None = None, tile: int = factored.DEFAULT_TILE,
+            progress: bool = True) -> dict:
     """Recompress the LTM of a reconstructed store and drop its frames, atomically.
 
     Parameters
@@ -85,6 +87,8 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
         the luminance of its tile).
     tile : int
         The factored form's pixel tile side.
+    progress : bool
+        A progress bar over the tiles being factored.
 
     Returns
     -------
@@ -116,7 +120,8 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
             with st.revised_store(real, resumable=False) as side:
                 info = (_compact_copy(real, side, PRECISIONS[precision], drop)
                         if form == "dense" else
-                        _factor_copy(real, side, PRECISIONS[precision], drop, target_db, tile))
+                        _factor_copy(real, side, PRECISIONS[precision], drop, target_db, tile,
+                                     progress))
                 info.update(precision=precision, form=form,
                             frames_dropped=bool(drop) or not _has_frames(side),
                             frames_kept_reason="far-light store: relit from its frames" if far
@@ -202,7 +207,7 @@ def _rewrite(src: zarr.Array, group: zarr.Group, name: str, dtype) -> tuple[floa
 
 
 def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: float | None,
-                 tile: int) -> dict:
+                 tile: int, progress: bool) -> dict:
     """Replace every LTM variable of the linked copy ``side`` by its factors
     (:mod:`ltmstore.core.factored`); drop its light-major copy."""
     source = st.open_group(path, mode="r")
@@ -222,7 +227,8 @@ def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: floa
             budget = partial(_heldout_budget, *_heldout_inputs(source, path), kept)
         else:  # a colour LTM leaves out as much of its energy as the luminance of its tile
             budget = partial(_luma_fraction, kept)
-        s, n, ranks[name] = _write_factors(source[name], target, name, dtype, budget, tile)
+        s, n, ranks[name] = _write_factors(source[name], target, name, dtype, budget, tile,
+                                           progress)
         signal, noise = signal + s, noise + n
         stored["factor_bytes"] += sum(store_bytes(side / n) for n in (
             factored.weights_name(name), factored.basis_name(name)))
@@ -271,7 +277,7 @@ def _luma_fraction(kept: dict, corner: tuple[int, int], values: np.ndarray) -> f
 
 
 def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
-                   tile: int) -> tuple[float, float, dict]:
+                   tile: int, progress: bool) -> tuple[float, float, dict]:
     """Factor ``src`` tile by tile (the left-out energy at most ``budget(corner, values)``) and
     write ``{name}_weights`` and ``{name}_basis``; return the sums of squares of the values and
     of the stored factors' error, and the ranks used."""
@@ -291,7 +297,9 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
         return w, b, float(np.sum(values.astype(np.float64) ** 2)), float(np.sum(error ** 2))
 
     with ThreadPoolExecutor(max_workers=2) as pool:
-        parts = dict(zip(corners, pool.map(factor, corners), strict=True))
+        bar = tqdm(pool.map(factor, corners), total=len(corners), desc=f"factor {name}",
+                   unit="tile", disable=not progress)
+        parts = dict(zip(corners, bar, strict=True))
     rank = max(p[0].shape[2] for p in parts.values())
     weights, basis = _create_factors(group, name, src, dtype, tile, rank)
     for (y0, x0), (w, b, _, _) in parts.items():
