@@ -27,6 +27,7 @@ from ltmstore.core.dims import LUMA, Lattice, Plane
 from ltmstore.core.store import open_store
 from ltmstore.judge.benchmark import random_lights, relight_cost
 from ltmstore.judge.evaluate import snr_db
+from ltmstore.stages.compact import store_bytes
 from ltmstore.stages.ingest import ingest
 from ltmstore.stages.reconstruct import reconstruct
 from ltmstore.synthetic.render import iter_frames
@@ -99,6 +100,9 @@ def main() -> None:
                         help="skip the truth (at Notre Dame-b 2560 full-frame renders, about "
                              "40 min of one core) and save the LTM at its pixels to PATH "
                              "(.npy): versions then compare bit for bit (scale_compare.py)")
+    parser.add_argument("--form", choices=("dense", "factored"), default="dense",
+                        help="the stored form of the LTM (ltm reconstruct --form); factored "
+                             "writes scale_<config>_factored.json")
     args = parser.parse_args()
     cfg = CONFIGS[args.config]
     work = Path(args.work) / args.config
@@ -109,7 +113,8 @@ def main() -> None:
     with PeakMemory() as memory:
         start = time.perf_counter()
         info = reconstruct(work / "store.zarr", lattice=cfg["lattice"], color=False,
-                           progress=True, overwrite=args.reuse)  # luminance, as in the paper
+                           progress=True, overwrite=args.reuse,  # luminance, as in the paper
+                           form=args.form)
         times["reconstruct_s"] = time.perf_counter() - start
     ltm = open_store(work / "store.zarr")["ltm"]
     sub = slice(SNR_STEP // 2, None, SNR_STEP)
@@ -119,12 +124,16 @@ def main() -> None:
     else:
         snr = snr_db(truth_subset(cfg, sim["exposure"]), ltm[sub, sub].values)
     result = {
-        "config": args.config, "command": f"python bench/scale_bench.py --config {args.config}",
+        "config": args.config, "form": args.form,
+        "command": f"python bench/scale_bench.py --config {args.config} --form {args.form}",
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "memory_gib": psutil.virtual_memory().total / 2**30},
         "ltmstore": __version__, "pixels": cfg["size"] ** 2, "lattice": list(cfg["lattice"]),
         "frames": sim["frames"], "sampling_ratio": info["sampling_ratio"],
         "ltm_gb_float32": ltm.nbytes / 1e9, "timings": {**times, **info["timings"]},
+        "ltm_stored_bytes": sum(store_bytes(work / "store.zarr" / n) for n in LTM_STORED
+                                if (work / "store.zarr" / n).exists()),
+        "store_bytes": store_bytes(work / "store.zarr"), "ranks": info.get("ranks"),
         "seconds_per_pixel_solve": info["seconds_per_pixel"],
         "snr_y_db_pixel_subset": snr, "snr_pixels": f"[{SNR_STEP // 2}::{SNR_STEP}] x 2",
         "ltm_subset": args.subset_to,
@@ -136,12 +145,14 @@ def main() -> None:
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"scale_{args.config}.json").write_text(json.dumps(result, indent=2) + "\n")
+    suffix = "_factored" if args.form == "factored" else ""
+    (out / f"scale_{args.config}{suffix}.json").write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))
     if not args.reuse:
         shutil.rmtree(work, ignore_errors=True)
 
 
+LTM_STORED = ("ltm", "ltm_by_light", "ltm_weights", "ltm_basis")  # either form's LTM bytes
 SIM_JSON = "simulate.json"  # what the simulation returned, kept beside a reusable scene
 
 

@@ -116,6 +116,12 @@ def register(sub) -> None:
     p.add_argument("--no-light-major", action="store_true",
                    help="skip the light-major copy of the LTM: half the LTM bytes, but each "
                    "relit light reads every pixel tile (`ltm compact` adds the copy later)")
+    p.add_argument("--form", choices=("dense", "factored"), default="dense",
+                   help="dense: the LTM array and its light-major copy; factored: each tile "
+                   "stores a basis over the lattice cells and per-pixel weights at the least "
+                   "rank within 0.3 of its held-out error, no dense LTM ever written (a few "
+                   "percent of the bytes, for captures whose dense LTM does not fit; "
+                   "near-light 4D stores) (default: %(default)s)")
     p.set_defaults(func=cmd_reconstruct)
 
     p = sub.add_parser("relight", help="render the store under new point lights",
@@ -282,7 +288,7 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
                        method=a.method, auto=not a.no_auto, tile=a.tile,
                        color={"auto": None, "on": True, "off": False}[a.color],
                        overwrite=a.overwrite, force=a.force,
-                       light_major=not a.no_light_major)
+                       light_major=not a.no_light_major, form=a.form)
     density = info["path_density"]
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
           + ("" if density is None else f"path density {density:.1f}/{plane_unit(a.store)}  ")
@@ -291,7 +297,9 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
           + (f"surface model skipped (did not pay: ~{skipped:.0f} s saved)  "
              if (skipped := info["timings"].get("surface_skipped_s")) is not None else "")
           + f"resample {info['timings']['resample_s']:.1f} s  "
-          f"solve {info['timings']['solve_s']:.1f} s" + placement_note(info.get("placement")))
+          f"solve {info['timings']['solve_s']:.1f} s" + placement_note(info.get("placement"))
+          + (f"  factored: ranks {r['min']}-{r['max']}, mean {r['mean']:.1f}"
+             if (r := info.get("ranks", {}).get("ltm")) else ""))
 
 
 def placement_note(record: dict | None) -> str:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 WEIGHTS, BASIS = "_weights", "_basis"
+TILE_WEIGHTS, TILE_BASIS = "_tile_weights", "_tile_basis"  # staged by ltm reconstruct
 TILE_DIMS = ("factor_tile_y", "factor_tile_x")
 DEFAULT_TILE = 32
 HELDOUT_FRACTION = 0.3  # the factors' error against the model's held-out error, at most

@@ -66,6 +66,10 @@ def _layout() -> dict[str, tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]]:
            for k in ("ltm", "ltm_cb", "ltm_cr")},  # ltm compact --form factored
         **{f"{k}_basis": ((("factor_tile_y", "factor_tile_x", "rank" + k[3:], *lat),), (F32, F16))
            for k in ("ltm", "ltm_cb", "ltm_cr") for lat in LATTICES[:1]},
+        **{f"{k}_tile_weights": (((*pixels, "tile_rank"),), (F32,))
+           for k in ("ltm", "ltm_cb", "ltm_cr")},  # staged by ltm reconstruct --form factored
+        **{f"{k}_tile_basis": ((("tile_y", "tile_x", "tile_rank", *LATTICES[0]),), (F32,))
+           for k in ("ltm", "ltm_cb", "ltm_cr")},
         **{k: (((k,),), (F64,)) for k in ("t", "r", "s", "p", "q")},
         **{k: (((k,),), ("int64",)) for k in ("y", "x")},
         **{k: (((k,),), ("string",)) for k in ("channel", "color", "component")},
@@ -274,8 +278,11 @@ def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
     if reconstruct:
         maps = ["expected_error", "unsupported", "method_map"] if "method" in reconstruct else []
         ltms = ["ltm", *(f"ltm_{c}" for c in colour)]
-        if done("compact").get("form") == "factored" and "ltm" not in metas:
-            ltms = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis")]
+        factors = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis")]
+        if reconstruct.get("form") == "factored":  # ltm reconstruct --form factored
+            ltms = factors
+        elif done("compact").get("form") == "factored" and "ltm" not in metas:
+            ltms = factors
             need.update({n: "compact" for n in ltms})
         need.update({n: "reconstruct" for n in [*ltms, *maps]
                      if n not in need})

@@ -47,8 +47,10 @@ STAGE_VARIABLES = {
                     # a far-light store's surface model (ltmstore.stages.surface)
                     "normal", "albedo", "specular", "roughness", "ambient", "exposure",
                     # the factored form `ltm compact --form factored` leaves (core.factored)
+                    # and its staging during `ltm reconstruct --form factored`
                     *(f"{n}{part}" for n in ("ltm", "ltm_cb", "ltm_cr")
-                      for part in (factored.WEIGHTS, factored.BASIS))),
+                      for part in (factored.WEIGHTS, factored.BASIS, factored.TILE_WEIGHTS,
+                                   factored.TILE_BASIS))),
 }
 # The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.

@@ -48,6 +48,7 @@ from ltmstore.core.dims import EXPECTED_ERROR, FRAME_CHROMA, FRAMES, LTM, SAMPLE
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve.validate import observed_range
+from ltmstore.stages import factors
 from ltmstore.stages.by_light import LTM_NAMES, write_by_light
 
 PRECISIONS = {"float32": np.float32, "float16": np.float16}
@@ -110,6 +111,9 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
     if st.stages(group).get("compact", {}).get("form") == "factored":
         raise LtmError(f"store {str(path)!r} is already compacted to the factored form; run "
                        "ltm reconstruct --overwrite on a fresh ingest for a dense ltm")
+    if form == "factored" and factored.weights_name(LTM) in group:
+        raise LtmError(f"store {str(path)!r} already holds the factored form (ltm reconstruct "
+                       "--form factored); expected a dense ltm to factor")
     st.check_writable(path)
     far = light_kind(group.attrs.get("acquisition", {})) == FAR
     drop = [n for n in FRAME_VARIABLES if n in group] if not (keep_frames or far) else []
@@ -301,7 +305,8 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
                    unit="tile", disable=not progress)
         parts = dict(zip(corners, bar, strict=True))
     rank = max(p[0].shape[2] for p in parts.values())
-    weights, basis = _create_factors(group, name, src, dtype, tile, rank)
+    weights, basis = factors.create(group, name, src.shape[:2], src.shape[2:], src.chunks[2:],
+                                    dtype, tile, rank, src.attrs.asdict())
     for (y0, x0), (w, b, _, _) in parts.items():
         padded = np.zeros((*w.shape[:2], rank), dtype)
         padded[..., :w.shape[2]] = w
@@ -312,26 +317,3 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
     used = [p[0].shape[2] for p in parts.values()]
     return (sum(p[2] for p in parts.values()), sum(p[3] for p in parts.values()),
             {"min": min(used), "mean": float(np.mean(used)), "max": rank})
-
-
-def _create_factors(group: zarr.Group, name: str, src: zarr.Array, dtype, tile: int,
-                    rank: int) -> tuple[zarr.Array, zarr.Array]:
-    """Create ``{name}_weights`` and ``{name}_basis`` (blocks of whole tiles; the basis in
-    chunks of the dense LTM's lattice chunk, sharded by block)."""
-    ny, nx, *cells = src.shape
-    ty, tx = -(-ny // tile), -(-nx // tile)
-    block = (min(factored.BLOCK_TILES, ty), min(factored.BLOCK_TILES, tx))
-    rank_dim = factored.rank_dim(name)
-    attrs = {**src.attrs.asdict(), "factored_form_of": name, "tile": tile}
-    weights = st.create_variable(
-        group, factored.weights_name(name), ("y", "x", rank_dim), (ny, nx, rank),
-        chunks=(block[0] * tile, block[1] * tile, rank), dtype=dtype, fill_value=0,
-        compressors=checksum.FAST_COMPRESSORS, attrs=attrs)
-    basis = st.create_variable(
-        group, factored.basis_name(name), (*factored.TILE_DIMS, rank_dim, "r", "s"),
-        (ty, tx, rank, *cells), chunks=(*block, rank, *src.chunks[2:]),
-        shards=(*block, rank, *(-(-n // c) * c for n, c in zip(cells, src.chunks[2:],
-                                                              strict=True))),
-        dtype=dtype, fill_value=0,
-        compressors=checksum.FAST_COMPRESSORS, attrs=attrs)
-    return weights, basis

@@ -19,7 +19,7 @@ import numpy as np
 import zarr
 from tqdm.auto import tqdm
 
-from ltmstore.core import checksum, memory
+from ltmstore.core import checksum, factored, memory
 from ltmstore.core import store as st
 from ltmstore.core.dims import (
     CHROMA_CHANNELS,
@@ -47,6 +47,7 @@ from ltmstore.solve.select import (
     choose_params,
     finalists,
 )
+from ltmstore.stages import factors
 from ltmstore.stages import surface as sf
 from ltmstore.stages.by_light import write_by_light
 from ltmstore.stages.plan import TilePlan, check_fits, plan_tiles, write_method_map
@@ -64,6 +65,8 @@ if TYPE_CHECKING:  # Dask loads where a near-light run needs it: a far-light run
     from distributed import Client
 
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
+FACTORS = "factors"  # key of the staging factors in a tile's outputs (the factored form)
+FORMS = ("dense", "factored")
 # auto chooses once per image (choose_for_image) from this many pixels of this many tiles
 IMAGE_PIXELS = 256
 IMAGE_TILES = 16
@@ -91,15 +94,19 @@ def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray
 
 def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str, params: dict,
                 geometry: Geometry, auto: bool, extent: dict | None = None,
-                chosen: ImageChoice | None = None, block_info=None) -> np.ndarray:
-    """Solve one pixel tile and write its ``ltm`` shard and confidence maps; ``extent`` (the
-    acquisition's ``object``) places the tile's pixels on the object plane; ``chosen``: the
-    finalists of ``auto`` for the whole image (:func:`choose_for_image`), that the tile
-    chooses between (None: ``method`` is ``auto``'s whole choice, or a named method).
+                chosen: ImageChoice | None = None, fractions: np.ndarray | None = None,
+                block_info=None) -> np.ndarray:
+    """Solve one pixel tile and write its ``ltm`` shard (or its factors) and confidence maps;
+    ``extent`` (the acquisition's ``object``) places the tile's pixels on the object plane;
+    ``chosen``: the finalists of ``auto`` for the whole image (:func:`choose_for_image`), that
+    the tile chooses between (None: ``method`` is ``auto``'s whole choice, or a named method);
+    ``fractions``: per tile, the fraction of its energy a colour LTM's factors may leave out
+    (the luminance's, from its held-out error).
 
     Returns ``[[record]]``: seconds, the parameters used and the held-out errors behind them.
     """
     from ltmstore.solve.confidence import expected_error, flag_unsupported  # SciPy: here
+    from ltmstore.solve.validate import observed_range
 
     start = time.perf_counter()
     (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
@@ -134,15 +141,27 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     _check_finite(estimate, batch, ty, tx)
     if sf.NORMAL in out:  # every chunk is written: NaN where the tile chose another method
         _write_surface_tile(out, surface, (slice(y0, y1), slice(x0, x1)), tile)
+    error = None
     if EXPECTED_ERROR in out:  # the luminance pass also maps the confidence
         estimate = np.maximum(estimate, 0)  # light transport is never negative (Cb, Cr may be)
         out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
-        out[EXPECTED_ERROR][y0:y1, x0:x1] = expected_error(
-            batch, geometry, method, params=choice.params, folds=1,
-            per_pixel=warm).reshape(tile)
-    out[LTM][y0:y1, x0:x1] = estimate.reshape(samples.shape)
-    record = {"seconds": time.perf_counter() - start, "method": label, "tile": [int(ty), int(tx)],
-              "params": choice.params, "heldout": choice.errors, "method_error": method_error}
+        error = expected_error(batch, geometry, method, params=choice.params, folds=1,
+                               per_pixel=warm)
+        out[EXPECTED_ERROR][y0:y1, x0:x1] = error.reshape(tile)
+    record = {"method": label, "tile": [int(ty), int(tx)], "params": choice.params,
+              "heldout": choice.errors, "method_error": method_error}
+    where = (slice(y0, y1), slice(x0, x1))
+    if FACTORS in out:
+        values = estimate.reshape(samples.shape)
+        total = float(np.sum(np.asarray(values, np.float64) ** 2))
+        allowed = (fractions[ty, tx] * total if error is None else factored.heldout_budget(
+            error * observed_range(batch), int(np.prod(samples.shape[2:]))))
+        w, b = factored.factor_tile(values, allowed)
+        factors.write_tile(out[FACTORS], where, (ty, tx), w, b)
+        record.update(rank=int(w.shape[2]), fraction=allowed / total if total > 0 else 0.0)
+    else:
+        out[LTM][where] = estimate.reshape(samples.shape)
+    record["seconds"] = time.perf_counter() - start
     out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
     memory.trim()  # the tile's temporaries leave the worker's heap
     result = np.empty((1, 1), dtype=object)
@@ -263,7 +282,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
                 color: bool | None = None, tile: int | None = None, overwrite: bool = False,
                 resume: bool = True, force: bool = False, light_major: bool = True,
-                progress: bool = True) -> dict:
+                form: str = "dense", progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store.
 
     A store without a complete ``ltm`` is written in place (an interrupted run of the same
@@ -312,6 +331,11 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         Also write the light-major copy of each LTM (:mod:`ltmstore.stages.by_light`): as many
         bytes again, and what makes relighting interactive (a point light reads 4 cells' image
         planes); ``ltm compact`` can add it later. A far-light store has none.
+    form : {"dense", "factored"}
+        ``factored``: each tile's solver stores its LTFs as a basis and per-pixel weights at
+        the least rank within its held-out error (:mod:`ltmstore.stages.factors`, as ``ltm
+        compact --form factored`` does) in place of the dense ``ltm`` and its light-major copy:
+        a store of a few percent of the bytes, for captures whose dense LTM is too large.
 
     Returns
     -------
@@ -322,6 +346,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         raise LtmError("give either --lattice or --delta-rs, not both")
     if tile is not None and (int(tile) != tile or tile < 1):
         raise LtmError(f"--tile {tile!r} must be a positive whole number of pixels")
+    if form not in FORMS:
+        raise LtmError(f"form {form!r} must be one of {', '.join(FORMS)}")
     path = os.path.abspath(path)  # Dask workers resolve a relative path in their own folder
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
@@ -336,9 +362,12 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         if delta_rs is not None:
             raise LtmError("--delta-rs is a cell size on a plane; a far-light store takes "
                            "--lattice RxS (cells over the disk of directions)")
-    elif method != AUTO:
+    if form == "factored" and (far or "pose_p" in group):
+        raise LtmError(f"store {str(path)!r}: the factored form holds a near-light ltm "
+                       "(y, x, r, s); expected --form dense for a far-light or 6-D store")
+    if not far and method != AUTO:
         get_method(method)
-    elif params:
+    elif not far and params:
         raise LtmError(f"params {params!r} need a named method; auto chooses the method and its "
                        "parameters per tile")
     st.check_writable(path)
@@ -353,10 +382,10 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
                        "ingest it again with this version")
     _check_user_lattice(path, group, lattice=lattice, delta_rs=delta_rs, far=far,
-                        copies=_ltm_copies(color, light_major), tile=tile)
+                        copies=_ltm_copies(color, light_major, form), tile=tile)
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
                auto=auto, color=color, tile=tile, progress=progress, resume=resume, force=force,
-               light_major=light_major)
+               light_major=light_major and form == "dense", form=form)
     try:
         with st.writing(path):
             if not revise:
@@ -389,7 +418,7 @@ def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -
 
 
 def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: bool,
-            tile: int) -> dict:
+            tile: int, form: str = "dense") -> dict:
     """Everything that shapes the ``ltm`` (with the software): equal keys, equal results."""
     from ltmstore.core.provenance import software
 
@@ -397,14 +426,14 @@ def run_key(*, lattice, delta_rs, method: str, params: dict, auto: bool, color: 
     return json.loads(json.dumps({
         "lattice": None if lattice is None else [int(n) for n in lattice],
         "delta_rs": delta_rs, "method": method, "params": params, "auto": bool(auto),
-        "color": bool(color), "tile": None if tile is None else int(tile),
+        "color": bool(color), "tile": None if tile is None else int(tile), "form": form,
         "software": soft["version"]}, sort_keys=True, default=str))
 
 
-def _ltm_copies(color: bool, light_major: bool) -> int:
-    """Dense LTM-sized float32 variables of a run: samples, ltm, and its light-major copy,
-    for luminance and, in colour, Cb and Cr."""
-    return (3 if color else 1) * (3 if light_major else 2)
+def _ltm_copies(color: bool, light_major: bool, form: str = "dense") -> int:
+    """Dense LTM-sized float32 variables of a run: samples, ltm, and its light-major copy
+    (the samples alone in the factored form), for luminance and, in colour, Cb and Cr."""
+    return (3 if color else 1) * (1 if form == "factored" else 3 if light_major else 2)
 
 
 def _check_user_lattice(path: str, group: zarr.Group, *, lattice, delta_rs, far: bool,
@@ -481,7 +510,7 @@ def tiles_name(variable: str) -> str:
 
 def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
                  params: dict, auto: bool, color: bool, tile: int, progress: bool,
-                 resume: bool, force: bool, light_major: bool) -> dict:
+                 resume: bool, force: bool, light_major: bool, form: str) -> dict:
     import dask.array as da
 
     plane = _plane(group)
@@ -496,7 +525,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     frames = da.from_zarr(group["frames"])
     plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile)
     check_fits(plan, path, what=f"the {chosen} lattice {'x'.join(map(str, lat.shape))}",
-               ltm_copies=_ltm_copies(color, light_major))
+               ltm_copies=_ltm_copies(color, light_major, form))
     binning = bin_positions(lat, positions, valid)
     if binning.k == 0:
         raise LtmError(f"no valid frame falls on the {lat.shape} lattice")
@@ -505,7 +534,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
         raise LtmError(_too_sparse(lat, binning, automatic,
                                    bin_positions(automatic, positions, valid).ratio))
     key = run_key(lattice=lattice, delta_rs=delta_rs, method=method, params=params, auto=auto,
-                  color=color, tile=tile)
+                  color=color, tile=tile, form=form)
     ltm_names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]
     sample_names = [SAMPLES, *(CHROMA_SAMPLES[c] for c in CHROMA_CHANNELS if color)]
     sampling = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k,
@@ -513,9 +542,11 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
                 "path_density": path_length(r, s, valid=valid) / plane.area}
     solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height), plan=plan,
                       sampling=sampling, key=key, method=method, params=params, auto=auto,
-                      color=color, progress=progress, light_major=light_major)
+                      color=color, progress=progress, light_major=light_major, form=form)
     place = partial(_place, group, plan, binning, r, s, plane, method)
-    if resume and _resumable(group, key, plan, [*sample_names, *ltm_names, EXPECTED_ERROR,
+    outputs = (ltm_names if form == "dense"
+               else [factors.staging_names(n)[i] for n in ltm_names for i in (0, 1)])
+    if resume and _resumable(group, key, plan, [*sample_names, *outputs, EXPECTED_ERROR,
                                                 UNSUPPORTED], ltm_names):
         timings = {"resample_s": 0.0}
         return _solve_stage(group, client, **solve_args, **place(timings), timings=timings,
@@ -536,9 +567,12 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     placed = place(timings)
 
     for name in ltm_names:
-        st.create_variable(group, name, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
-                           chunks=plan.chunks, shards=plan.shards,
-                           compressors=checksum.FAST_COMPRESSORS)
+        if form == "factored":
+            factors.create_staging(group, name, plan.image, plan.lattice, plan.tile)
+        else:
+            st.create_variable(group, name, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
+                               chunks=plan.chunks, shards=plan.shards,
+                               compressors=checksum.FAST_COMPRESSORS)
         st.create_variable(group, tiles_name(name), ("tile_y", "tile_x"), plan.grid,
                            chunks=(1, 1), dtype=str, fill_value="")
     st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
@@ -567,25 +601,34 @@ def _place(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray, s
 def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan: TilePlan,
                  sampling: dict, key: dict, method: str, params: dict, auto: bool, color: bool,
                  progress: bool, timings: dict, resumed: bool, light_major: bool,
-                 extent: dict | None, placement: dict | None) -> dict:
+                 form: str, extent: dict | None, placement: dict | None) -> dict:
     """Solve every tile not yet marked done (all of them in a fresh run); complete the stage.
     ``extent`` places the pixels on the object plane for the surface model (None: without it);
     ``placement`` records where it came from."""
     start = time.perf_counter()
-    out = {LTM: group[LTM], EXPECTED_ERROR: group[EXPECTED_ERROR],
-           UNSUPPORTED: group[UNSUPPORTED], TILES: group[tiles_name(LTM)],
+
+    def outputs(name: str) -> dict:  # where a tile of the LTM variable ``name`` goes
+        written = ({FACTORS: tuple(group[n] for n in factors.staging_names(name))}
+                   if form == "factored" else {LTM: group[name]})
+        return {**written, TILES: group[tiles_name(name)]}
+
+    out = {**outputs(LTM), EXPECTED_ERROR: group[EXPECTED_ERROR],
+           UNSUPPORTED: group[UNSUPPORTED],
            **{name: group[name] for name in sf.SURFACE if name in group}}
     solve = partial(_solve_tiles, plan=plan, geometry=geometry, params=params, client=client,
                     progress=progress)
     records, solved = solve(group[SAMPLES], out, method=method, auto=auto, extent=extent)
     record_method_map(group, records, plan, method)
+    all_records = {LTM: records}
     # The colour LTM: the same method, default parameters. Signed chroma is no reflectance:
     # `--method physical` interpolates it with rbf, and auto's chroma passes leave physical out.
+    # Its factors leave out the fraction of its energy the luminance's left out in each tile.
     chroma_method = "rbf" if method == "physical" else method
+    fractions = _tile_values(records, plan, "fraction") if form == "factored" else None
     for c in CHROMA_CHANNELS if color else ():
-        chroma_out = {LTM: group[CHROMA_LTM[c]], TILES: group[tiles_name(CHROMA_LTM[c])]}
-        solved += solve(group[CHROMA_SAMPLES[c]], chroma_out, method=chroma_method,
-                        auto=False, extent=None)[1]
+        done, n = solve(group[CHROMA_SAMPLES[c]], outputs(CHROMA_LTM[c]),
+                        method=chroma_method, auto=False, extent=None, fractions=fractions)
+        all_records[CHROMA_LTM[c]], solved = done, solved + n
     timings["solve_s"] = time.perf_counter() - start
     passes = 1 + len(CHROMA_CHANNELS) * bool(color)
     info = {**sampling, "method": method, "params": params, "auto": auto, "color": color,
@@ -593,12 +636,21 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "methods_per_tile": summarise_methods(records), "plan": asdict(plan),
             "heldout_error": _mean_heldout(records), "tiles_total": plan.n_tiles * passes,
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
-            "resumed": resumed, "timings": timings,
+            "resumed": resumed, "timings": timings, "form": form,
+            **({"heldout_fraction": factored.HELDOUT_FRACTION} if form == "factored" else {}),
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image)),
             **({"placement": placement} if placement is not None else {})}
     names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]
+    start = time.perf_counter()
     for name in names:
-        check_solved(group, name, plan, client)
+        if form == "factored":  # refuses a tile whose factors are missing
+            ranks = _tile_values(all_records[name], plan, "rank").astype(int)
+            factors.gather(group, name, plan.tile, plan.lattice_chunk, int(ranks.max()))
+            info.setdefault("ranks", {})[name] = {
+                "min": int(ranks.min()), "mean": float(ranks.mean()), "max": int(ranks.max())}
+        else:
+            check_solved(group, name, plan, client)
+    timings["gather_s" if form == "factored" else "check_s"] = time.perf_counter() - start
     start = time.perf_counter()
     for name in names if light_major else ():
         write_by_light(group, name, client=client)  # the light-major copy relight reads
@@ -668,9 +720,18 @@ def _mean_heldout(records: list[dict]) -> float | None:
     return float(np.mean(errors)) if errors else None
 
 
+def _tile_values(records: list[dict], plan: TilePlan, key: str) -> np.ndarray:
+    """``record[key]`` of every tile, on the tile grid."""
+    values = np.zeros(plan.grid)
+    for rec in records:
+        values[tuple(rec["tile"])] = rec[key]
+    return values
+
+
 def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TilePlan,
                  geometry: Geometry, method: str, params: dict, auto: bool, client: Client,
-                 progress: bool, extent: dict | None) -> tuple[list[dict], int]:
+                 progress: bool, extent: dict | None,
+                 fractions: np.ndarray | None = None) -> tuple[list[dict], int]:
     """Run one Dask task per pixel tile not yet marked done in ``out[TILES]``.
 
     Returns every tile's record (earlier runs' from their marks) and how many were solved now.
@@ -686,7 +747,8 @@ def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TileP
     tiles = da.from_zarr(samples, chunks=plan.block)
     records = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
                                geometry=geometry, auto=auto, extent=extent, chosen=chosen,
-                               drop_axis=list(range(2, tiles.ndim)), chunks=(1, 1), dtype=object)
+                               fractions=fractions, drop_axis=list(range(2, tiles.ndim)),
+                               chunks=(1, 1), dtype=object)
     futures = client.compute(list(records.to_delayed()[todo]))
     done = [json.loads(str(m)) for m in marks[~todo]]
     with tqdm(total=len(futures), desc="reconstruct tiles", disable=not progress) as bar:

@@ -1,0 +1,124 @@
+"""`ltm reconstruct --form factored`: every tile's solver stores its factors (no dense LTM, no
+light-major copy ever written); the store reads, checks, relights and compacts like one that
+`ltm compact --form factored` made; a tile whose factors never arrived is refused."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+import zarr
+from pipeline_helpers import run_ltm
+
+from ltmstore.core.errors import LtmError
+from ltmstore.core.store import open_store, store_summary
+from ltmstore.stages.relight import relight
+
+LIGHTS = [(-0.05, 0.03), (0.08, -0.11), (0.0, 0.0)]
+
+
+def snr_db(reference: np.ndarray, estimate: np.ndarray) -> float:
+    reference = np.asarray(reference, np.float64)
+    return float(10 * np.log10(np.sum(reference ** 2) / np.sum((reference - estimate) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def factored_run(small_store, tmp_path_factory, dask_cluster):
+    """The session's store reconstructed again (``--overwrite``) in the factored form, on
+    16 x 16 px tiles (4 tiles)."""
+    from distributed import Client
+
+    from ltmstore.stages.reconstruct import reconstruct
+
+    store = tmp_path_factory.mktemp("factored_run") / "store.zarr"
+    shutil.copytree(small_store, store, copy_function=os.link)
+    with Client(dask_cluster) as client:
+        info = reconstruct(store, client=client, lattice=(16, 16), tile=16, overwrite=True,
+                           form="factored", progress=False)
+    return store, info
+
+
+def test_no_dense_ltm_is_written_and_the_factors_are_near_the_truth(
+        factored_run, small_store, small_acquisition):
+    from ltmstore.judge.evaluate import compare_stores
+
+    store, info = factored_run
+    names = set(os.listdir(store))
+    assert {"ltm_weights", "ltm_basis"} <= names
+    assert not names & {"ltm", "ltm_by_light", "ltm_tile_weights", "ltm_tile_basis",
+                        "ltm_tiles_done"}
+    assert info["form"] == "factored" and info["heldout_fraction"] == 0.3
+    assert 9 <= info["ranks"]["ltm"]["min"] <= info["ranks"]["ltm"]["max"] <= 15  # 10-13
+    ds = open_store(store)
+    assert ds["ltm"].dims == ("y", "x", "r", "s") and ds["ltm"].chunks is not None
+    truth = small_acquisition / "truth.zarr"
+    dense = compare_stores(small_store, truth)["snr_y_db"]
+    found = compare_stores(store, truth)["snr_y_db"]
+    assert found > dense - 0.35  # measured 30.53 against 30.10 dB (its solve on 16 px tiles)
+    summary = store_summary(store)
+    assert summary["complete"] and summary["parameters"]["run"]["form"] == "factored"
+
+
+def test_it_checks_relights_and_compacts_like_a_compacted_store(factored_run, small_store,
+                                                                tmp_path):
+    store = shutil.copytree(factored_run[0], tmp_path / "store.zarr", copy_function=os.link)
+    assert run_ltm("check", store).returncode == 0
+    expected, found = relight(small_store, LIGHTS).values, relight(store, LIGHTS).values
+    assert snr_db(expected, found) > 38.5  # measured 39.0 dB (solved on 16 px tiles, not 32)
+    again = run_ltm("compact", store, "--form", "factored")
+    assert again.returncode == 2 and "already holds the factored form" in again.stderr
+    dropped = run_ltm("compact", store)
+    assert dropped.returncode == 0, dropped.stderr
+    assert "frames" not in os.listdir(store) and run_ltm("check", store).returncode == 0
+    np.testing.assert_array_equal(relight(store, LIGHTS).values, found)
+
+
+def test_a_tile_whose_factors_never_arrived_is_refused(tmp_path):
+    from ltmstore.stages import factors
+
+    group = zarr.open_group(str(tmp_path / "store.zarr"), mode="w", zarr_format=3)
+    factors.create_staging(group, "ltm", (32, 48), (6, 5), (16, 16))
+    rng = np.random.default_rng(0)
+    for ty, tx in [(0, 0), (0, 1), (1, 0), (1, 2)]:  # tile (0, 2) and (1, 1) never written
+        w = np.linalg.qr(rng.standard_normal((256, 3)))[0].reshape(16, 16, 3)
+        factors.write_tile(tuple(group[n] for n in factors.staging_names("ltm")),
+                           (slice(16 * ty, 16 * ty + 16), slice(16 * tx, 16 * tx + 16)),
+                           (ty, tx), w, rng.standard_normal((3, 6, 5)))
+    with pytest.raises(LtmError, match=r"missing in 2 tiles \(first tile 0, 2\)"):
+        factors.gather(group, "ltm", (16, 16), (6, 5), 3)
+
+
+def test_a_colour_capture_is_factored_in_every_channel(tmp_path, dask_cluster):
+    from distributed import Client
+
+    from ltmstore.stages.ingest import ingest
+    from ltmstore.stages.reconstruct import reconstruct
+    from ltmstore.synthetic.simulate import simulate_acquisition
+
+    simulate_acquisition(tmp_path / "acq", scene="canvas", size=24, seed=2, lattice=(12, 12),
+                         path_density=12.0, progress=False)
+    ingest(tmp_path / "acq", tmp_path / "store.zarr", progress=False)
+    with Client(dask_cluster) as client:
+        info = reconstruct(tmp_path / "store.zarr", client=client, lattice=(12, 12), tile=8,
+                           form="factored", progress=False)
+    assert set(info["ranks"]) == {"ltm", "ltm_cb", "ltm_cr"}
+    image = relight(tmp_path / "store.zarr", LIGHTS[:1])
+    assert image.sizes["color"] == 3 and np.isfinite(image.values).all()
+
+
+def test_a_far_light_store_is_refused_the_factored_form(tmp_path):
+    """A classic RTI capture relights from its frames at fitted weights: no (y, x, r, s) LTM to
+    factor. One line, exit 2, nothing written."""
+    from test_rti import write_capture
+
+    from ltmstore.core.lights import elevation_azimuth
+    from ltmstore.stages.ingest_rti import ingest_rti
+
+    lights = elevation_azimuth(np.repeat([30, 50, 75], 6), np.tile(np.arange(0, 360, 60), 3))
+    ingest_rti(write_capture(tmp_path / "cap", dirs=lights), tmp_path / "s.zarr", progress=False)
+    proc = run_ltm("reconstruct", tmp_path / "s.zarr", "--form", "factored")
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1
+    assert "expected --form dense for a far-light or 6-D store" in proc.stderr
+    assert not store_summary(tmp_path / "s.zarr")["stages"].get("reconstruct")
