@@ -52,9 +52,9 @@ def factor_tile(values: np.ndarray, allowed: float) -> tuple[np.ndarray, np.ndar
     """Truncated SVD of one tile's LTFs, at the smallest rank whose left-out energy (sum of
     squares) is at most ``allowed``.
 
-    The SVD comes from the eigendecomposition of the tile's smaller Gram matrix (``A A^T`` of
-    its pixels, or ``A^T A`` of its cells): one BLAS product and one symmetric eigensolver,
-    exact, and much faster than an SVD of ``A`` (a 32 x 32 px tile of 50 x 50 cells: 0.15 s).
+    The SVD comes from the largest eigenpairs of the tile's smaller Gram matrix (``A A^T`` of
+    its pixels, or ``A^T A`` of its cells): one BLAS product and a symmetric eigensolver on the
+    top of the spectrum only, much faster than an SVD of ``A``.
 
     Parameters
     ----------
@@ -72,13 +72,13 @@ def factor_tile(values: np.ndarray, allowed: float) -> tuple[np.ndarray, np.ndar
         ``(k, *cells)`` float64.
     """
     h, w, *cells = values.shape
-    a = values.reshape(h * w, -1).astype(np.float64)
+    a = values.reshape(h * w, -1).astype(np.float64)  # float32's Gram misses 50 dB by 1-2 dB
     pixels_side = a.shape[0] <= a.shape[1]
-    lam, vec = np.linalg.eigh(a @ a.T if pixels_side else a.T @ a)
-    lam, vec = np.clip(lam[::-1], 0, None), vec[:, ::-1]  # largest first
+    gram = a @ a.T if pixels_side else a.T @ a
     total = float(np.sum(a ** 2))
-    left = total - np.cumsum(lam)  # left-out energy at rank 1, 2, ...
-    reachable = left <= max(allowed, total * 10 ** (-MAX_DB / 10))
+    allowed = max(allowed, total * 10 ** (-MAX_DB / 10))
+    lam, vec = _top_eigen(gram, lambda lam: total - np.cumsum(lam) <= allowed)
+    reachable = total - np.cumsum(lam) <= allowed  # left-out energy at rank 1, 2, ...
     k = int(np.argmax(reachable)) + 1 if reachable.any() else len(lam)
     if pixels_side:  # A ~ U_k (U_k^T A)
         u = vec[:, :k]
@@ -87,6 +87,23 @@ def factor_tile(values: np.ndarray, allowed: float) -> tuple[np.ndarray, np.ndar
     s = np.sqrt(lam[:k])
     u = (a @ v) / np.where(s > 0, s, 1)
     return u.reshape(h, w, k), (s[:, None] * v.T).reshape(k, *cells)
+
+
+def _top_eigen(gram: np.ndarray, enough, first: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """The largest eigenvalues (float64, descending, clipped at 0) and their eigenvectors of the
+    symmetric ``gram``: the top ``first`` when ``enough(eigenvalues)`` holds somewhere among
+    them (LAPACK's ``syevr`` on a subset: the top 64 of a 1024 x 1024 Gram matrix in 0.29 s
+    against 0.56 s for all, on a loaded machine), else all of them."""
+    from scipy.linalg import eigh
+
+    n = len(gram)
+    if 2 * first <= n:
+        lam, vec = eigh(gram, subset_by_index=[n - first, n - 1], driver="evr")
+        lam, vec = np.clip(lam[::-1], 0, None), vec[:, ::-1]
+        if enough(lam).any():
+            return lam, vec
+    lam, vec = np.linalg.eigh(gram)
+    return np.clip(lam[::-1], 0, None), vec[:, ::-1]
 
 
 def target_budget(values: np.ndarray, target_db: float) -> float:

@@ -3,7 +3,9 @@
 Plan, then execute: a frozen :class:`TilePlan` fixes the pixel tiles (the solver's unit and the
 Zarr shard of ``ltm``) and the inner chunks that split the lattice, before any work is done.
 Tiles run as Dask tasks on whatever cluster is given; each reads its samples from the store,
-solves, and writes its own shard, so a tile is the unit of progress and of failure.
+solves, and writes its own shard, so a tile is the unit of progress and of failure. In the
+factored form (``form="factored"``) a tile writes its factors instead (:mod:`.factors`),
+gathered into the stored layout once every tile is solved.
 """
 
 from __future__ import annotations
@@ -153,6 +155,9 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     where = (slice(y0, y1), slice(x0, x1))
     if FACTORS in out:
         values = estimate.reshape(samples.shape)
+        if not np.isfinite(values).all():
+            raise LtmError(f"the solution of tile {ty}, {tx} is not finite everywhere: the "
+                           "factored form needs a finite ltm; nothing of it was written")
         total = float(np.sum(np.asarray(values, np.float64) ** 2))
         allowed = (fractions[ty, tx] * total if error is None else factored.heldout_budget(
             error * observed_range(batch), int(np.prod(samples.shape[2:]))))
