@@ -51,7 +51,7 @@ def main() -> None:
         "relight": relight_cost(dst, lights), "store_bytes": store_bytes(dst),
         "factor_bytes": sum(store_bytes(dst / n) for n in ("ltm_weights", "ltm_basis"))}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "scale_toys_factored.json").write_text(json.dumps(result, indent=2) + "\n")
+    (args.out / "compact_toys_factored.json").write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))
 
 
