@@ -238,5 +238,13 @@ def relight(weights, basis, pattern: np.ndarray, tile: int):
         lit = da.zeros((len(pattern), *basis.shape[:3]), np.float32,
                        chunks=(len(pattern), *basis.chunks[:3]))
     lit = lit.rechunk((-1, basis.chunks[0], basis.chunks[1], -1))  # blocks as the weights
-    return da.blockwise(_expand_dot, "lyx", weights, "yxk", lit, "lyxk", dtype=np.float32,
-                        align_arrays=False, concatenate=True, tile=tile)
+    # the rank in one chunk, passed as is: concatenating a single block along it would copy the
+    # block's padded weights (0.26 s of a 0.8 s point light at the Notre Dame-b size)
+    return da.blockwise(_expand_only_block, "lyx", weights.rechunk({2: -1}), "yxk", lit, "lyxk",
+                        dtype=np.float32, align_arrays=False, concatenate=False, tile=tile)
+
+
+def _expand_only_block(weights: list, lit: list, tile: int) -> np.ndarray:
+    """:func:`_expand_dot` of the one block along the rank (``concatenate=False`` lists it)."""
+    (weights,), (lit,) = weights, lit
+    return _expand_dot(weights, lit, tile)
