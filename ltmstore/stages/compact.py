@@ -50,9 +50,9 @@ from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve.validate import observed_range
 from ltmstore.stages import factors
 from ltmstore.stages.by_light import LTM_NAMES, write_by_light
+from ltmstore.stages.factors import FORMS
 
 PRECISIONS = {"float32": np.float32, "float16": np.float16}
-FORMS = ("dense", "factored")
 FRAME_VARIABLES = (FRAMES, FRAME_CHROMA)
 
 
@@ -307,13 +307,9 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
     rank = max(p[0].shape[2] for p in parts.values())
     weights, basis = factors.create(group, name, src.shape[:2], src.shape[2:], src.chunks[2:],
                                     dtype, tile, rank, src.attrs.asdict())
-    for (y0, x0), (w, b, _, _) in parts.items():
-        padded = np.zeros((*w.shape[:2], rank), dtype)
-        padded[..., :w.shape[2]] = w
-        weights[y0:y0 + w.shape[0], x0:x0 + w.shape[1]] = padded
-        full = np.zeros((rank, *b.shape[1:]), dtype)
-        full[:b.shape[0]] = b
-        basis[y0 // tile, x0 // tile] = full
+    for (y0, x0), (w, b, _, _) in parts.items():  # zero (the fill value) beyond its rank
+        weights[y0:y0 + w.shape[0], x0:x0 + w.shape[1], :w.shape[2]] = w
+        basis[y0 // tile, x0 // tile, :b.shape[0]] = b
     used = [p[0].shape[2] for p in parts.values()]
     return (sum(p[2] for p in parts.values()), sum(p[3] for p in parts.values()),
             {"min": min(used), "mean": float(np.mean(used)), "max": rank})

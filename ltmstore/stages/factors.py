@@ -20,6 +20,7 @@ from ltmstore.core import checksum, factored
 from ltmstore.core import store as st
 from ltmstore.core.errors import LtmError
 
+FORMS = ("dense", "factored")  # the stored forms of an LTM (ltm reconstruct / compact --form)
 RANK_CHUNK = 64  # rank per staging chunk: a tile writes (and gather reads) only those it uses
 
 
@@ -66,19 +67,14 @@ def create_staging(group: zarr.Group, name: str, image: tuple[int, int],
                        compressors=checksum.FAST_COMPRESSORS)
 
 
-def write_tile(group_arrays: tuple[zarr.Array, zarr.Array], where: tuple[slice, slice],
+def write_tile(staging: tuple[zarr.Array, zarr.Array], where: tuple[slice, slice],
                index: tuple[int, int], weights: np.ndarray, basis: np.ndarray) -> None:
     """Write one tile's factors (``weights (h, w, k)``, ``basis (k, r, s)``) into its staging
-    rows: only the rank chunks that hold them."""
-    stage_w, stage_b = group_arrays
+    rows, up to its rank (zero, the fill value, beyond it); no other tile shares their chunks."""
+    stage_w, stage_b = staging
     k = weights.shape[2]
-    used = -(-k // stage_w.chunks[2]) * stage_w.chunks[2]
-    padded = np.zeros((*weights.shape[:2], min(used, stage_w.shape[2])), np.float32)
-    padded[..., :k] = weights
-    stage_w[(*where, slice(0, padded.shape[2]))] = padded
-    full = np.zeros((padded.shape[2], *basis.shape[1:]), np.float32)
-    full[:k] = basis
-    stage_b[(*index, slice(0, full.shape[0]))] = full
+    stage_w[(*where, slice(0, k))] = weights
+    stage_b[(*index, slice(0, k))] = basis
 
 
 def gather(group: zarr.Group, name: str, tile: tuple[int, int],

@@ -52,6 +52,7 @@ from ltmstore.solve.select import (
 from ltmstore.stages import factors
 from ltmstore.stages import surface as sf
 from ltmstore.stages.by_light import write_by_light
+from ltmstore.stages.factors import FORMS
 from ltmstore.stages.plan import TilePlan, check_fits, plan_tiles, write_method_map
 from ltmstore.stages.resample import (
     Binning,
@@ -68,7 +69,6 @@ if TYPE_CHECKING:  # Dask loads where a near-light run needs it: a far-light run
 
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
 FACTORS = "factors"  # key of the staging factors in a tile's outputs (the factored form)
-FORMS = ("dense", "factored")
 # auto chooses once per image (choose_for_image) from this many pixels of this many tiles
 IMAGE_PIXELS = 256
 IMAGE_TILES = 16
