@@ -33,7 +33,7 @@ def sparse_ltfs(n: int, shape: tuple[int, ...], *, k: int, seed: int) -> np.ndar
 
 @pytest.mark.parametrize("block_bytes", [256 * 2**20, 2000])  # one time block, or a reduction
 def test_masked_binning_averages_each_pixels_finite_values(block_bytes, monkeypatch):
-    monkeypatch.setattr("ltmstore.stages.resample.MASKED_BLOCK_BYTES", block_bytes)
+    monkeypatch.setattr("ltmstore.stages.resample.TILE_FRAMES_BYTES", block_bytes)
     rng = np.random.default_rng(0)
     n, h, w = 300, 3, 4
     pos = [rng.uniform(-1, 1, n) for _ in range(4)]

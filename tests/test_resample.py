@@ -1,9 +1,12 @@
+from unittest.mock import patch
+
 import dask.array as da
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ltmstore.core.dims import Lattice, Plane
+from ltmstore.stages import resample
 from ltmstore.stages.resample import bin_frames, bin_positions, path_length
 
 PLANE = Plane(r=(0.0, 4.0), s=(0.0, 2.0), height=1.0)
@@ -34,14 +37,20 @@ def test_upper_plane_edge_belongs_to_last_cell():
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(1, 9), st.integers(1, 9), st.integers(1, 40), st.integers(1, 7),
-       st.integers(0, 2**31 - 1))
-def test_binning_matches_a_loop_for_any_block_size(nr, ns, nt, chunk, seed):
+       st.integers(0, 2**31 - 1), st.booleans())
+def test_binning_matches_a_loop_for_any_block_size(nr, ns, nt, chunk, seed, long_video):
+    """One pass per tile, or (``long_video``: the tile's frames over the bytes of one task)
+    partial sums of ``chunk`` frames added by Dask."""
     rng = np.random.default_rng(seed)
     lattice = Lattice.from_plane(PLANE, (nr, ns))
     r, s = rng.uniform(-0.5, 4.5, nt), rng.uniform(-0.5, 2.5, nt)
     frames = rng.random((nt, 2, 2)).astype(np.float32)
     binning = bin_positions(lattice, (r, s))
-    out = bin_frames(da.from_array(frames), binning, block_frames=chunk, tile=(2, 1)).compute()
+    with patch.object(resample, "TILE_FRAMES_BYTES", 0 if long_video else 2**20):
+        lazy = bin_frames(da.from_array(frames), binning, block_frames=chunk, tile=(2, 1))
+    layers = " ".join(lazy.dask.layers)
+    assert ("_block_sums" in layers) == long_video and ("_tile_means" in layers) != long_video
+    out = lazy.compute()
     sums, counts = np.zeros((2, 2, nr * ns)), np.zeros(nr * ns)
     for f, c in zip(frames, binning.cell, strict=True):
         if c >= 0:

@@ -63,6 +63,19 @@ def _block_sums_masked(block: np.ndarray, cells: np.ndarray, *, k: int) -> np.nd
     return out
 
 
+def _tile_means(block: np.ndarray, cells: np.ndarray, *, count: np.ndarray,
+                m: int) -> np.ndarray:
+    """All the frames of one pixel tile: ``(t, y, x)`` -> ``(y, x, M)`` means (``count``:
+    frames per flat cell), NaN where a cell has none."""
+    order, starts, idx = _runs(cells[:, 0, 0])
+    out = np.full((*block.shape[1:], m), np.nan, dtype=np.float32)
+    if order.size:
+        sums = np.add.reduceat(block[order].astype(np.float32), starts, axis=0)
+        sums /= count[idx, None, None]
+        out[..., idx] = np.moveaxis(sums, 0, -1)
+    return out
+
+
 def _scatter_means(block: np.ndarray, *, cells: np.ndarray, m: int) -> np.ndarray:
     """``(y, x, 2 K)`` sums and counts -> ``(y, x, M)`` means, NaN where a pixel has none."""
     k = len(cells)
@@ -72,7 +85,7 @@ def _scatter_means(block: np.ndarray, *, cells: np.ndarray, m: int) -> np.ndarra
     return out
 
 
-MASKED_BLOCK_BYTES = 256 * 2**20  # frames of one pixel tile binned at once (6D)
+TILE_FRAMES_BYTES = 256 * 2**20  # frames of one pixel tile binned at once
 
 
 def bin_frames_masked(frames: da.Array, binning: Binning, *, block_frames: int = 512,
@@ -81,7 +94,7 @@ def bin_frames_masked(frames: da.Array, binning: Binning, *, block_frames: int =
 
     A 6D lattice has millions of cells, so per-time-block partial sums of every tile would not
     fit in memory together. Instead each task takes one pixel tile over (up to
-    :data:`MASKED_BLOCK_BYTES` of) the whole time axis, the tile being the frames' own spatial
+    :data:`TILE_FRAMES_BYTES` of) the whole time axis, the tile being the frames' own spatial
     chunk when it is no larger than ``tile`` (registered frames are stored in small spatial
     chunks), and keeps sums and counts only for the ``K`` visited cells. Memory per task: the
     tile's frames, a ``(tile, 2 K)`` partial and its ``(tile, M)`` means.
@@ -91,7 +104,7 @@ def bin_frames_masked(frames: da.Array, binning: Binning, *, block_frames: int =
     chunk = frames.chunksize[1:]
     tile = tuple(c if c <= t else t for c, t in zip(chunk, tile, strict=True))
     per_frame = 4 * int(np.prod(tile))
-    block_frames = max(block_frames, min(frames.shape[0], MASKED_BLOCK_BYTES // per_frame))
+    block_frames = max(block_frames, min(frames.shape[0], TILE_FRAMES_BYTES // per_frame))
     frames = frames.rechunk((block_frames, *tile))
     visited = np.flatnonzero(binning.count.reshape(-1) > 0)
     compact = np.full(binning.m, -1, dtype=np.int64)
@@ -112,9 +125,12 @@ def bin_frames(frames: da.Array, binning: Binning, *, block_frames: int = 512,
                tile: tuple[int, int] = (32, 32)) -> da.Array:
     """Mean of the frames in each cell, NaN where none: lazy ``(y, x, *lattice)`` float32.
 
-    Each block of ``block_frames`` frames of a pixel ``tile`` is reduced to per-cell sums
-    (sort by cell, segment sums: O(frames x pixels), not O(frames x pixels x cells)); Dask adds
-    the partial sums of the blocks. Memory per task: one block and one ``(tile, M)`` partial.
+    One task per pixel ``tile`` takes all its frames (up to :data:`TILE_FRAMES_BYTES` of them)
+    and reduces them to per-cell means (sort by cell, segment sums: O(frames x pixels), not
+    O(frames x pixels x cells)). Memory per task: the tile's frames and its ``(tile, M)``
+    means. Longer videos are reduced in blocks of ``block_frames`` frames whose partial sums
+    Dask adds (a tree reduction over time): 1.4x the time of the single pass (90 against 66 s
+    for Notre Dame-b's 1291 frames of 1 MP on 32 x 80 cells, 2 workers).
 
     Parameters
     ----------
@@ -128,8 +144,16 @@ def bin_frames(frames: da.Array, binning: Binning, *, block_frames: int = 512,
 
     if len(binning.lattice.shape) > 2:
         return bin_frames_masked(frames, binning, block_frames=block_frames, tile=tile)
-    frames = frames.rechunk((block_frames, *tile), method="tasks")  # splits: no P2P shuffle
-    cells = da.from_array(binning.cell[:, None, None], chunks=(frames.chunks[0], 1, 1))
+    cells = binning.cell[:, None, None]
+    if frames.shape[0] * 4 * int(np.prod(tile)) <= TILE_FRAMES_BYTES:  # one pass per tile
+        frames = frames.rechunk((frames.shape[0], *tile), method="tasks")  # no P2P shuffle
+        count = binning.count.reshape(-1).astype(np.float32)
+        means = da.map_blocks(_tile_means, frames, da.from_array(cells, chunks=-1), count=count,
+                              m=binning.m, drop_axis=0, new_axis=2,
+                              chunks=(*frames.chunks[1:], (binning.m,)), dtype=np.float32)
+        return means.reshape(*frames.shape[1:], *binning.lattice.shape)
+    frames = frames.rechunk((block_frames, *tile), method="tasks")
+    cells = da.from_array(cells, chunks=(frames.chunks[0], 1, 1))
     partial = da.map_blocks(_block_sums, frames, cells, m=binning.m, new_axis=3,
                             chunks=((1,) * frames.numblocks[0], *frames.chunks[1:],
                                     (binning.m,)), dtype=np.float32)
