@@ -122,3 +122,45 @@ def test_a_far_light_store_is_refused_the_factored_form(tmp_path):
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1
     assert "expected --form dense for a far-light or 6-D store" in proc.stderr
     assert not store_summary(tmp_path / "s.zarr")["stages"].get("reconstruct")
+
+
+def test_auto_stores_the_dense_form_while_it_fits_in_half_the_free_disk():
+    """`--form auto` (the default) at a phone's 4K on a 32 x 32 lattice: the dense store (the
+    samples, the ltm and its light-major copy) is about 63 GB, so the factors on a laptop's
+    15 GB free and the dense form on 200 GB; the boundary is half the free disk."""
+    from ltmstore.stages.plan import choose_form, plan_tiles
+
+    plan = plan_tiles((2160, 3840), (32, 32))
+    laptop = choose_form(plan, ".", channels=1, light_major=True, free=15 * 10**9)
+    assert laptop["form"] == "factored"
+    assert 62e9 < laptop["dense_estimate_bytes"] < 64e9  # 4 x 8.29 M px x 1024 x 1.85
+    dense = laptop["dense_estimate_bytes"]
+    assert choose_form(plan, ".", channels=1, light_major=True, free=200 * 10**9)["form"] == "dense"
+    assert choose_form(plan, ".", channels=1, light_major=True, free=2 * dense)["form"] == "dense"
+    assert choose_form(plan, ".", channels=1, light_major=True,
+                       free=2 * dense - 2)["form"] == "factored"
+    from ltmstore.cli.pipeline import form_note
+
+    assert form_note({"form_choice": laptop}) == (
+        "  (factored: the dense form would store about 58.5 GiB, more than half of the "
+        "14 GiB free)")
+    colour = choose_form(plan, ".", channels=3, light_major=False, free=0)
+    assert colour["dense_estimate_bytes"] == pytest.approx(3 * dense * 1.08 / 1.85, rel=1e-6)
+
+
+def test_auto_keeps_the_form_of_an_interrupted_run(tmp_path, small_store):
+    """An interrupted factored run resumes factored even where the dense form would fit now; a
+    complete store chooses again (the session's store: dense, on this disk)."""
+    from ltmstore.core import store as st
+    from ltmstore.stages.reconstruct import _choose_form
+
+    group = zarr.open_group(str(tmp_path / "store.zarr"), mode="w", zarr_format=3)
+    group.attrs["stages"] = {"reconstruct": {"complete": False, "run": {"form": "factored"}}}
+    kept = _choose_form(str(tmp_path / "store.zarr"), group, far=False, lattice=None,
+                        delta_rs=None, channels=1, light_major=True, tile=None)
+    assert kept == {"form": "factored", "resumed": True}
+    done = st.open_group(small_store, mode="r")
+    again = _choose_form(str(small_store), done, far=False, lattice=(16, 16), delta_rs=None,
+                         channels=1, light_major=True, tile=None)
+    assert again["form"] == "dense" and 0 < again["dense_estimate_bytes"] < again["free_bytes"]
+    assert st.stages(done)["reconstruct"]["form"] == "dense"

@@ -116,12 +116,13 @@ def register(sub) -> None:
     p.add_argument("--no-light-major", action="store_true",
                    help="skip the light-major copy of the LTM: half the LTM bytes, but each "
                    "relit light reads every pixel tile (`ltm compact` adds the copy later)")
-    p.add_argument("--form", choices=("dense", "factored"), default="dense",
+    p.add_argument("--form", choices=("auto", "dense", "factored"), default="auto",
                    help="dense: the LTM array and its light-major copy; factored: each tile "
                    "stores a basis over the lattice cells and per-pixel weights at the least "
                    "rank within 0.3 of its held-out error, no dense LTM ever written (a few "
                    "percent of the bytes, for captures whose dense LTM does not fit; "
-                   "near-light 4D stores) (default: %(default)s)")
+                   "near-light 4D stores); auto: dense while its store would take at most "
+                   "half the free disk, else factored (default: %(default)s)")
     p.set_defaults(func=cmd_reconstruct)
 
     p = sub.add_parser("relight", help="render the store under new point lights",
@@ -299,7 +300,19 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
           + f"resample {info['timings']['resample_s']:.1f} s  "
           f"solve {info['timings']['solve_s']:.1f} s" + placement_note(info.get("placement"))
           + (f"  factored: ranks {r['min']}-{r['max']}, mean {r['mean']:.1f}"
-             if (r := info.get("ranks", {}).get("ltm")) else ""))
+             if (r := info.get("ranks", {}).get("ltm")) else "") + form_note(info))
+
+
+def form_note(info: dict) -> str:
+    """Why ``--form auto`` stored the factors (empty where it stored the dense form)."""
+    from ltmstore.stages.plan import size_text
+
+    choice = info.get("form_choice") or {}
+    if choice.get("form") != "factored" or "dense_estimate_bytes" not in choice:
+        return ""
+    return (f"  (factored: the dense form would store about "
+            f"{size_text(choice['dense_estimate_bytes'])}, more than half of the "
+            f"{size_text(choice['free_bytes'])} free)")
 
 
 def placement_note(record: dict | None) -> str:

@@ -53,7 +53,13 @@ from ltmstore.stages import factors
 from ltmstore.stages import surface as sf
 from ltmstore.stages.by_light import write_by_light
 from ltmstore.stages.factors import FORMS
-from ltmstore.stages.plan import TilePlan, check_fits, plan_tiles, write_method_map
+from ltmstore.stages.plan import (
+    TilePlan,
+    check_fits,
+    choose_form,
+    plan_tiles,
+    write_method_map,
+)
 from ltmstore.stages.resample import (
     Binning,
     bin_frames,
@@ -287,7 +293,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
                 color: bool | None = None, tile: int | None = None, overwrite: bool = False,
                 resume: bool = True, force: bool = False, light_major: bool = True,
-                form: str = "dense", progress: bool = True) -> dict:
+                form: str = AUTO, progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store.
 
     A store without a complete ``ltm`` is written in place (an interrupted run of the same
@@ -336,11 +342,14 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         Also write the light-major copy of each LTM (:mod:`ltmstore.stages.by_light`): as many
         bytes again, and what makes relighting interactive (a point light reads 4 cells' image
         planes); ``ltm compact`` can add it later. A far-light store has none.
-    form : {"dense", "factored"}
+    form : {"auto", "dense", "factored"}
         ``factored``: each tile's solver stores its LTFs as a basis and per-pixel weights at
         the least rank within its held-out error (:mod:`ltmstore.stages.factors`, as ``ltm
         compact --form factored`` does) in place of the dense ``ltm`` and its light-major copy:
         a store of a few percent of the bytes, for captures whose dense LTM is too large.
+        ``auto``: dense while it fits in half the free disk
+        (:func:`~ltmstore.stages.plan.choose_form`), else factored; an interrupted run keeps
+        its form; a far-light or 6-D store is dense.
 
     Returns
     -------
@@ -351,8 +360,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         raise LtmError("give either --lattice or --delta-rs, not both")
     if tile is not None and (int(tile) != tile or tile < 1):
         raise LtmError(f"--tile {tile!r} must be a positive whole number of pixels")
-    if form not in FORMS:
-        raise LtmError(f"form {form!r} must be one of {', '.join(FORMS)}")
+    if form not in (AUTO, *FORMS):
+        raise LtmError(f"form {form!r} must be one of {', '.join((AUTO, *FORMS))}")
     path = os.path.abspath(path)  # Dask workers resolve a relative path in their own folder
     group = st.open_group(path, mode="r")
     st.require_stage(group, "ingest", path)
@@ -386,6 +395,12 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     if color and FRAME_CHROMA not in group:
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
                        "ingest it again with this version")
+    form_choice = None
+    if form == AUTO:
+        form_choice = _choose_form(path, group, far=far, lattice=lattice, delta_rs=delta_rs,
+                                   channels=3 if color else 1, light_major=light_major,
+                                   tile=tile)
+        form = form_choice["form"]
     _check_user_lattice(path, group, lattice=lattice, delta_rs=delta_rs, far=far,
                         copies=_ltm_copies(color, light_major, form), tile=tile)
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
@@ -394,14 +409,31 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     try:
         with st.writing(path):
             if not revise:
-                return _on_cluster(path, client, scheduler, run)
-            # a good ltm exists: build the new one on a linked copy, swapped in when complete
-            with st.revised_store(path) as side:
-                return _on_cluster(side, client, scheduler, run)
+                info = _on_cluster(path, client, scheduler, run)
+            else:  # a good ltm exists: build the new one on a linked copy, swapped in when done
+                with st.revised_store(path) as side:
+                    info = _on_cluster(side, client, scheduler, run)
     except OSError as exc:  # a full disk, a store made read-only during the run
         kept = ("the previous ltm is untouched" if revise
                 else "its reconstruct stage stays incomplete")
         raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}; {kept}") from exc
+    return {**info, **({"form_choice": form_choice} if form_choice else {})}
+
+
+def _choose_form(path: str, group: zarr.Group, *, far: bool, lattice, delta_rs,
+                 channels: int, light_major: bool, tile: int | None) -> dict:
+    """``--form auto``: the form of an interrupted run of this store (so that it resumes),
+    dense for a far-light or 6-D store, else :func:`~ltmstore.stages.plan.choose_form` on the
+    lattice the run will use."""
+    stage = st.stages(group).get("reconstruct", {})
+    if not stage.get("complete") and stage.get("run", {}).get("form") in FORMS:
+        return {"form": stage["run"]["form"], "resumed": True}
+    if far or "pose_p" in group:
+        return {"form": "dense"}
+    r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
+    lat = _pick_lattice(_plane(group), r, s, valid, shape=lattice, delta=delta_rs)[0]
+    plan = plan_tiles(group["frames"].shape[1:], lat.shape, tile=tile or 32)
+    return choose_form(plan, path, channels=channels, light_major=light_major)
 
 
 def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -> dict:
