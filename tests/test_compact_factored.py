@@ -158,3 +158,27 @@ def test_a_colour_ltm_is_factored_and_relights_in_colour(colour_store, tmp_path)
     assert found.shape == expected.shape and found.shape[-1] == 3
     assert snr_db(expected, found) > 52.5  # measured 53.0 dB (ltm 50.9 dB, 9 tiles each)
     assert run_ltm("check", store).returncode == 0
+
+
+@pytest.mark.parametrize("rank", [12, 40, 90])
+def test_a_tile_is_factored_at_the_least_rank_within_its_budget(rank):
+    """A 32 x 32 tile on 40 x 50 cells: ``rank`` strong directions over noise, a budget just
+    above the noise. The range finder (ranks up to 48) and the exact eigenpairs beyond it both
+    find the least rank (the exact SVD's) and leave out no more than the budget."""
+    from ltmstore.core import factored
+
+    rng = np.random.default_rng(rank)
+    strong = rng.standard_normal((1024, rank)) @ (rng.standard_normal((rank, 2000))
+                                                  * np.geomspace(10, 1, rank)[:, None])
+    a = strong + 0.01 * rng.standard_normal((1024, 2000))
+    s = np.linalg.svd(a, compute_uv=False)
+    allowed = 1.05 * float(np.sum(s[rank:] ** 2))
+    least = int(np.argmax(np.sum(a ** 2) - np.cumsum(s ** 2) <= allowed)) + 1
+    w, b = factored.factor_tile(a.reshape(32, 32, 40, 50), allowed)
+    assert w.shape == (32, 32, least) and b.shape == (least, 40, 50) and least == rank
+    sketched = factored._sketch(a, float(np.sum(a ** 2)), allowed)
+    assert (sketched is None) == (rank > factored.SKETCH - factored.OVERSAMPLE)
+    left = float(np.sum((a - w.reshape(1024, -1) @ b.reshape(least, -1)) ** 2))
+    assert left <= allowed
+    np.testing.assert_allclose(w.reshape(1024, -1).T @ w.reshape(1024, -1), np.eye(least),
+                               atol=1e-9)
