@@ -151,16 +151,34 @@ def test_auto_stores_the_dense_form_while_it_fits_in_half_the_free_disk():
 def test_auto_keeps_the_form_of_an_interrupted_run(tmp_path, small_store):
     """An interrupted factored run resumes factored even where the dense form would fit now; a
     complete store chooses again (the session's store: dense, on this disk)."""
+    from functools import partial
+
     from ltmstore.core import store as st
-    from ltmstore.stages.reconstruct import _choose_form
+    from ltmstore.stages.reconstruct import _choose_form, _dense_estimate
 
     group = zarr.open_group(str(tmp_path / "store.zarr"), mode="w", zarr_format=3)
     group.attrs["stages"] = {"reconstruct": {"complete": False, "run": {"form": "factored"}}}
-    kept = _choose_form(str(tmp_path / "store.zarr"), group, far=False, lattice=None,
-                        delta_rs=None, channels=1, light_major=True, tile=None)
+    kept = _choose_form(group, far=False, estimate=lambda: {"form": "dense"})
     assert kept == {"form": "factored", "resumed": True}
     done = st.open_group(small_store, mode="r")
-    again = _choose_form(str(small_store), done, far=False, lattice=(16, 16), delta_rs=None,
-                         channels=1, light_major=True, tile=None)
+    estimate = partial(_dense_estimate, str(small_store), done, lattice=(16, 16), delta_rs=None,
+                       channels=1, light_major=True, tile=None)
+    again = _choose_form(done, far=False, estimate=estimate)
     assert again["form"] == "dense" and 0 < again["dense_estimate_bytes"] < again["free_bytes"]
     assert st.stages(done)["reconstruct"]["form"] == "dense"
+
+
+def test_a_dense_form_over_the_free_disk_is_warned_of():
+    """`--form dense` asked for where its estimate exceeds the free disk: one warning line that
+    names both sizes (the run goes on: the estimate may be wrong); none where it fits."""
+    import warnings
+
+    from ltmstore.core.errors import LtmWarning
+    from ltmstore.stages.reconstruct import _warn_if_it_overflows
+
+    with pytest.warns(LtmWarning, match=r"estimated at 18.6 GiB, more than the 14 GiB free"):
+        _warn_if_it_overflows({"dense_estimate_bytes": 19_990_000_000,
+                               "free_bytes": 15 * 10**9})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_if_it_overflows({"dense_estimate_bytes": 10**9, "free_bytes": 15 * 10**9})

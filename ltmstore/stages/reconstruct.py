@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import warnings
 from dataclasses import asdict, dataclass
 from functools import partial
 from typing import TYPE_CHECKING
@@ -37,7 +38,7 @@ from ltmstore.core.dims import (
     Plane,
     object_pixels,
 )
-from ltmstore.core.errors import LtmError
+from ltmstore.core.errors import LtmError, LtmWarning
 from ltmstore.core.lights import DISK, FAR, light_kind
 from ltmstore.solve import DEFAULT_METHOD, Geometry, get_method
 from ltmstore.solve.select import (
@@ -58,6 +59,7 @@ from ltmstore.stages.plan import (
     check_fits,
     choose_form,
     plan_tiles,
+    size_text,
     write_method_map,
 )
 from ltmstore.stages.resample import (
@@ -70,6 +72,8 @@ from ltmstore.stages.resample import (
 )
 
 if TYPE_CHECKING:  # Dask loads where a near-light run needs it: a far-light run never does
+    from collections.abc import Callable
+
     import dask.array as da
     from distributed import Client
 
@@ -396,11 +400,13 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
                        "ingest it again with this version")
     form_choice = None
+    estimate = partial(_dense_estimate, path, group, lattice=lattice, delta_rs=delta_rs,
+                       channels=3 if color else 1, light_major=light_major, tile=tile)
     if form == AUTO:
-        form_choice = _choose_form(path, group, far=far, lattice=lattice, delta_rs=delta_rs,
-                                   channels=3 if color else 1, light_major=light_major,
-                                   tile=tile)
+        form_choice = _choose_form(group, far=far, estimate=estimate)
         form = form_choice["form"]
+    elif form == "dense" and not far and "pose_p" not in group:
+        _warn_if_it_overflows(estimate())
     _check_user_lattice(path, group, lattice=lattice, delta_rs=delta_rs, far=far,
                         copies=_ltm_copies(color, light_major, form), tile=tile)
     run = dict(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
@@ -420,20 +426,37 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     return {**info, **({"form_choice": form_choice} if form_choice else {})}
 
 
-def _choose_form(path: str, group: zarr.Group, *, far: bool, lattice, delta_rs,
-                 channels: int, light_major: bool, tile: int | None) -> dict:
+def _choose_form(group: zarr.Group, *, far: bool, estimate: Callable[[], dict]) -> dict:
     """``--form auto``: the form of an interrupted run of this store (so that it resumes),
-    dense for a far-light or 6-D store, else :func:`~ltmstore.stages.plan.choose_form` on the
-    lattice the run will use."""
+    dense for a far-light or 6-D store, else the choice of ``estimate()``
+    (:func:`_dense_estimate`)."""
     stage = st.stages(group).get("reconstruct", {})
     if not stage.get("complete") and stage.get("run", {}).get("form") in FORMS:
         return {"form": stage["run"]["form"], "resumed": True}
     if far or "pose_p" in group:
         return {"form": "dense"}
+    return estimate()
+
+
+def _dense_estimate(path: str, group: zarr.Group, *, lattice, delta_rs, channels: int,
+                    light_major: bool, tile: int | None) -> dict:
+    """:func:`~ltmstore.stages.plan.choose_form` on the lattice the run will use (a near-light
+    4-D store)."""
     r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     lat = _pick_lattice(_plane(group), r, s, valid, shape=lattice, delta=delta_rs)[0]
     plan = plan_tiles(group["frames"].shape[1:], lat.shape, tile=tile or 32)
     return choose_form(plan, path, channels=channels, light_major=light_major)
+
+
+def _warn_if_it_overflows(estimate: dict) -> None:
+    """A ``--form dense`` asked for whose store is estimated at more than the free disk: one
+    warning line before hours of work (it runs all the same: the estimate may be wrong)."""
+    dense, free = estimate["dense_estimate_bytes"], estimate["free_bytes"]
+    if dense > free:
+        warnings.warn(f"the dense form of this store is estimated at {size_text(dense)}, more "
+                      f"than the {size_text(free)} free on its disk: it will likely run out of "
+                      "space; --form factored stores a few percent of that", LtmWarning,
+                      stacklevel=3)
 
 
 def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -> dict:
