@@ -161,6 +161,21 @@ def test_a_lattice_that_cannot_fit_is_refused_before_allocating(ingested, capsys
     assert tree_digest(ingested.parent) == before  # nothing written, no lock left
 
 
+def test_the_lattice_chunks_of_a_huge_axis_are_planned_at_once():
+    """A refused lattice is still planned before it is refused (the memory it would need):
+    ``_split`` walked every length below the chunk, about 2 minutes for 4e8 cells a side (a
+    reconstruct with --delta-rs 1e-9 passed the 600 s test timeout once planned twice). It
+    now walks the quotients where they are fewer; the chunks are the same."""
+    from ltmstore.stages.plan import _split, plan_tiles
+
+    def walked(n, chunk):  # the former search
+        return next((d for d in range(chunk - 1, 0, -1) if n % d == 0 and 4 * d >= chunk),
+                    -(-chunk // 2))
+
+    assert all(_split(n, c) == walked(n, c) for n in range(2, 300) for c in range(2, n + 1))
+    assert plan_tiles((32, 32), (4 * 10**8, 4 * 10**8)).lattice_chunk == (320, 400)
+
+
 def test_a_store_larger_than_the_free_disk_is_refused(tmp_path):
     """The disk half of item 10: 10^10 pixels at 64 x 64 cells fit this machine's memory
     (33.6 MB) but not its disk (894 TiB of float32 uncompressed, at least 55.9 TiB at the

@@ -89,9 +89,13 @@ def _split(n: int, chunk: int) -> int:
     """The next inner chunk length below ``chunk`` along an axis of ``n`` cells: the largest
     divisor of ``n`` below ``chunk`` and at least a quarter of it, else half of ``chunk``
     (rounded up)."""
-    half = -(-chunk // 2)
-    divisors = [d for d in range(chunk - 1, 0, -1) if n % d == 0 and 4 * d >= chunk]
-    return divisors[0] if divisors else half
+    low = -(-chunk // 4)
+    if chunk - low <= n // low - n // (chunk - 1):  # fewer lengths than quotients to try
+        found = (d for d in range(chunk - 1, low - 1, -1) if n % d == 0)
+    else:  # a huge axis (a refused lattice's plan): the quotients k = n / d, smallest first
+        found = (n // k for k in range(-(-n // (chunk - 1)), n // low + 1)
+                 if n % k == 0 and low <= n // k < chunk)
+    return next(found, -(-chunk // 2))
 
 
 # What one run holds in memory at once: the frame count of every cell (int64, resample's
