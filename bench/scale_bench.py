@@ -28,6 +28,7 @@ from ltmstore.core.store import open_store
 from ltmstore.judge.benchmark import random_lights, relight_cost
 from ltmstore.judge.evaluate import snr_db
 from ltmstore.stages.compact import store_bytes
+from ltmstore.stages.factors import FORMS
 from ltmstore.stages.ingest import ingest
 from ltmstore.stages.reconstruct import reconstruct
 from ltmstore.synthetic.render import iter_frames
@@ -100,7 +101,7 @@ def main() -> None:
                         help="skip the truth (at Notre Dame-b 2560 full-frame renders, about "
                              "40 min of one core) and save the LTM at its pixels to PATH "
                              "(.npy): versions then compare bit for bit (scale_compare.py)")
-    parser.add_argument("--form", choices=("dense", "factored"), default="dense",
+    parser.add_argument("--form", choices=FORMS, default="dense",
                         help="the stored form of the LTM (ltm reconstruct --form); factored "
                              "writes scale_<config>_factored.json")
     args = parser.parse_args()

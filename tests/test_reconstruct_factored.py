@@ -158,12 +158,12 @@ def test_auto_keeps_the_form_of_an_interrupted_run(tmp_path, small_store):
 
     group = zarr.open_group(str(tmp_path / "store.zarr"), mode="w", zarr_format=3)
     group.attrs["stages"] = {"reconstruct": {"complete": False, "run": {"form": "factored"}}}
-    kept = _choose_form(group, far=False, estimate=lambda: {"form": "dense"})
+    kept = _choose_form(group, planar=True, estimate=lambda: {"form": "dense"})
     assert kept == {"form": "factored", "resumed": True}
     done = st.open_group(small_store, mode="r")
     estimate = partial(_dense_estimate, str(small_store), done, lattice=(16, 16), delta_rs=None,
                        channels=1, light_major=True, tile=None)
-    again = _choose_form(done, far=False, estimate=estimate)
+    again = _choose_form(done, planar=True, estimate=estimate)
     assert again["form"] == "dense" and 0 < again["dense_estimate_bytes"] < again["free_bytes"]
     assert st.stages(done)["reconstruct"]["form"] == "dense"
 

@@ -278,11 +278,10 @@ def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
     if reconstruct:
         maps = ["expected_error", "unsupported", "method_map"] if "method" in reconstruct else []
         ltms = ["ltm", *(f"ltm_{c}" for c in colour)]
-        factors = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis")]
-        if reconstruct.get("form") == "factored":  # ltm reconstruct --form factored
-            ltms = factors
-        elif done("compact").get("form") == "factored" and "ltm" not in metas:
-            ltms = factors
+        compacted = done("compact").get("form") == "factored" and "ltm" not in metas
+        if reconstruct.get("form") == "factored" or compacted:  # either command's factors
+            ltms = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis")]
+        if compacted:
             need.update({n: "compact" for n in ltms})
         need.update({n: "reconstruct" for n in [*ltms, *maps]
                      if n not in need})

@@ -135,8 +135,8 @@ def check_fits(plan: TilePlan, store: str | os.PathLike, *, what: str, ltm_copie
         raise LtmError(f"{shape} needs at least {size_text(memory)} of memory (the frame count "
                        f"of every cell and a pixel tile of whole LTFs); {size_text(available)} "
                        "is available; expected a coarser lattice")
-    stored = ltm_copies * FLOAT_BYTES * math.prod(plan.image) * cells
-    free = shutil.disk_usage(_existing_parent(store)).free
+    stored = ltm_copies * _float32_bytes(plan)
+    free = _free_bytes(store)
     if stored // MAX_COMPRESSION > free:
         raise LtmError(f"{shape} makes a store of {size_text(stored)} uncompressed (at least "
                        f"{size_text(stored // MAX_COMPRESSION)} compressed); the disk of "
@@ -177,11 +177,21 @@ def choose_form(plan: TilePlan, store: str | os.PathLike, *, channels: int, ligh
         per float32 byte measured: :data:`LTM_STORED`, :data:`SAMPLES_STORED`) and
         ``free_bytes``.
     """
-    raw = FLOAT_BYTES * math.prod(plan.image) * math.prod(plan.lattice)
-    dense = int(channels * raw * (SAMPLES_STORED + LTM_STORED * (2 if light_major else 1)))
-    free = shutil.disk_usage(_existing_parent(store)).free if free is None else int(free)
+    copies = SAMPLES_STORED + LTM_STORED * (2 if light_major else 1)
+    dense = int(channels * _float32_bytes(plan) * copies)
+    free = _free_bytes(store) if free is None else int(free)
     form = "dense" if dense <= DENSE_DISK_SHARE * free else "factored"
     return {"form": form, "dense_estimate_bytes": dense, "free_bytes": free}
+
+
+def _float32_bytes(plan: TilePlan) -> int:
+    """Bytes of one LTM-sized float32 variable of ``plan``."""
+    return FLOAT_BYTES * math.prod(plan.image) * math.prod(plan.lattice)
+
+
+def _free_bytes(store: str | os.PathLike) -> int:
+    """Free bytes on the disk of ``store`` (or of its nearest existing parent folder)."""
+    return shutil.disk_usage(_existing_parent(store)).free
 
 
 def size_text(n: int) -> str:

@@ -380,7 +380,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         if delta_rs is not None:
             raise LtmError("--delta-rs is a cell size on a plane; a far-light store takes "
                            "--lattice RxS (cells over the disk of directions)")
-    if form == "factored" and (far or "pose_p" in group):
+    planar = not far and "pose_p" not in group  # a near-light (y, x, r, s) ltm
+    if form == "factored" and not planar:
         raise LtmError(f"store {str(path)!r}: the factored form holds a near-light ltm "
                        "(y, x, r, s); expected --form dense for a far-light or 6-D store")
     if not far and method != AUTO:
@@ -403,9 +404,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     estimate = partial(_dense_estimate, path, group, lattice=lattice, delta_rs=delta_rs,
                        channels=3 if color else 1, light_major=light_major, tile=tile)
     if form == AUTO:
-        form_choice = _choose_form(group, far=far, estimate=estimate)
+        form_choice = _choose_form(group, planar=planar, estimate=estimate)
         form = form_choice["form"]
-    elif form == "dense" and not far and "pose_p" not in group:
+    elif form == "dense" and planar:
         _warn_if_it_overflows(estimate())
     _check_user_lattice(path, group, lattice=lattice, delta_rs=delta_rs, far=far,
                         copies=_ltm_copies(color, light_major, form), tile=tile)
@@ -426,16 +427,14 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     return {**info, **({"form_choice": form_choice} if form_choice else {})}
 
 
-def _choose_form(group: zarr.Group, *, far: bool, estimate: Callable[[], dict]) -> dict:
+def _choose_form(group: zarr.Group, *, planar: bool, estimate: Callable[[], dict]) -> dict:
     """``--form auto``: the form of an interrupted run of this store (so that it resumes),
     dense for a far-light or 6-D store, else the choice of ``estimate()``
     (:func:`_dense_estimate`)."""
     stage = st.stages(group).get("reconstruct", {})
     if not stage.get("complete") and stage.get("run", {}).get("form") in FORMS:
         return {"form": stage["run"]["form"], "resumed": True}
-    if far or "pose_p" in group:
-        return {"form": "dense"}
-    return estimate()
+    return estimate() if planar else {"form": "dense"}
 
 
 def _dense_estimate(path: str, group: zarr.Group, *, lattice, delta_rs, channels: int,
