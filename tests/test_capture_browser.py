@@ -21,7 +21,9 @@ from capture_pages_helpers import A_EVERY, LATTICE, run_capture, simulate
 from pipeline_helpers import run_ltm
 
 from ltmstore.capture.acquisition import load_acquisition, load_poses
-from ltmstore.core.dims import Plane
+from ltmstore.capture.live import LIVE_MAX_GAP_S, path_samples
+from ltmstore.core.binning import bin_positions
+from ltmstore.core.dims import Lattice, Plane
 from ltmstore.stages.phone import LOCK_ADVICE
 
 
@@ -136,7 +138,7 @@ def test_folder_holds_phone_as_whole_video_tracked(captured):
 def test_shown_coverage_is_the_servers_and_the_folders(captured):
     """The page shows the server's final coverage (phone A's whole video at camera B's frames,
     the clocks aligned as `ltm sync` aligns them); the finished folder records the same K, M;
-    the count shown live (the live frames, bridged) was near it."""
+    the count shown live was the live frames' (bridged) by the server's rule."""
     a = captured["a"]
     last = a["last"]["coverage"]
     shown, target = captured["shown"], a["config"]["target_km"]
@@ -154,11 +156,11 @@ def test_shown_coverage_is_the_servers_and_the_folders(captured):
     # the shaded cells are those counted
     assert len(a["coveredCells"]) == last["covered"] >= 8
     assert last["cells"] == LATTICE[0] * LATTICE[1]
-    live = a["liveCoverage"]
-    # the live count spans all of phone A's path, its samples 0.2-0.7 s apart on this loaded
-    # machine joined by chords; camera B saw only part of the path here (its fake camera's
-    # file runs ~1.1 s ahead of phone A's): measured 42 vs 39, 44 vs 38, 40 vs 52 cells
-    assert 0.6 < live["covered"] / last["covered"] < 1.4, (live, last)
+    # the count shown live is the drawn path's by the live rule (45 of 45 cells, run alone).
+    # How near it comes to the final count depends on the load, how many live frames the page
+    # got: 42 vs 39, 44 vs 38, 40 vs 52, 45 vs 38 cells, and 26 vs 47 in a CI run; no bound
+    live, drawn = a["liveCoverage"], live_cells(a["path"], a["config"], captured["b"])
+    assert live["covered"] == drawn.sum(), (live, drawn.sum())
     record = load_acquisition(captured["folder"]).raw["capture"]
     assert (record["K"], record["M"]) == (last["covered"], last["cells"])
 
@@ -182,6 +184,20 @@ def test_shown_coverage_is_what_reconstruct_counts(captured, reconstructed):
     last = captured["a"]["last"]["coverage"]
     assert (last["covered"], last["cells"]) == (record["K"], record["M"])
     assert last["k_over_m"] == pytest.approx(record["sampling_ratio"])
+
+
+def live_cells(path: list, config: dict, b: dict) -> np.ndarray:
+    """The cells the live path covers by the server's rule for live frames: the drawn LED
+    positions sampled at camera B's rate, gaps up to LIVE_MAX_GAP_S bridged, within the
+    plane and its height tolerance."""
+    t, *led = np.array(path).T
+    r, s, z = path_samples(t, np.column_stack(led), b["finish"]["fps"], LIVE_MAX_GAP_S,
+                           keep_samples=True).T
+    plane = Plane(r=tuple(config["plane"]["r"]), s=tuple(config["plane"]["s"]),
+                  height=config["plane"]["height"])
+    valid = (np.abs(z - plane.height) <= config["height_tolerance"]) & plane.contains(r, s)
+    return bin_positions(Lattice.from_plane(plane, tuple(config["lattice"])), (r, s),
+                         valid).observed
 
 
 def scripted_tracker(size):
