@@ -97,27 +97,39 @@ async function switchTorchOn() {
              "yourself now (quick settings), and keep it on until you press Stop.", "warn");
 }
 
-/** The time (s, on this page's performance.now() clock) at which the next frame was captured. */
-function nextFrame(video) {
+/**
+ * Draw the next frame into ``canvas`` and return the time (s, on this page's performance.now()
+ * clock) at which it was captured, or null where the video has no size yet. The frame is drawn
+ * in its own callback: drawn later, a frame that arrived in between (a loaded machine) was sent
+ * with its predecessor's time, one frame interval early.
+ */
+function nextFrame(video, canvas) {
   return new Promise((resolve) => {
-    const timer = setTimeout(() => resolve(performance.now() / 1000), 250);
+    const timer = setTimeout(
+      () => resolve(drawFrame(video, canvas) ? performance.now() / 1000 : null), 250);
     if (video.requestVideoFrameCallback) {
       video.requestVideoFrameCallback((now, meta) => {
         clearTimeout(timer);
         const t = meta && Number.isFinite(meta.captureTime) && meta.captureTime <= now &&
           meta.captureTime > now - 1000 ? meta.captureTime : now;
-        resolve(t / 1000);
+        resolve(drawFrame(video, canvas) ? t / 1000 : null);
       });
     }
   });
 }
 
-function grab(video, canvas) {
+/** Draw the video's current frame into ``canvas`` (false: the video has no size yet). */
+function drawFrame(video, canvas) {
+  if (!video.videoWidth) return false;
   const scale = Math.min(1, MAX_SEND_WIDTH / video.videoWidth);
   canvas.width = Math.round(video.videoWidth * scale);
   canvas.height = Math.round(video.videoHeight * scale);
   canvas.getContext("2d").drawImage(video, 0, 0, canvas.width, canvas.height);
   capture.resolution = [canvas.width, canvas.height];
+  return true;
+}
+
+function encode(canvas) {
   return new Promise((resolve) => canvas.toBlob(resolve, "image/jpeg", 0.92));
 }
 
@@ -126,10 +138,10 @@ async function frameLoop(video) {
   const canvas = document.createElement("canvas");
   let previous = -Infinity;
   while (capture.state === "running") {
-    const t = await nextFrame(video);
-    if (capture.state !== "running" || !video.videoWidth || t <= previous) continue;
+    const t = await nextFrame(video, canvas);
+    if (capture.state !== "running" || t === null || t <= previous) continue;
     previous = t;  // the server wants increasing times
-    const jpeg = await grab(video, canvas);
+    const jpeg = await encode(canvas);
     const sentAt = performance.now();
     try {
       capture.sent += 1;
