@@ -196,8 +196,7 @@ def live_cells(path: list, config: dict, b: dict) -> np.ndarray:
     t, *led = np.array(path).T
     r, s, z = path_samples(t, np.column_stack(led), b["finish"]["fps"], LIVE_MAX_GAP_S,
                            keep_samples=True).T
-    plane = Plane(r=tuple(config["plane"]["r"]), s=tuple(config["plane"]["s"]),
-                  height=config["plane"]["height"])
+    plane = Plane.from_json(config["plane"])
     valid = (np.abs(z - plane.height) <= config["height_tolerance"]) & plane.contains(r, s)
     return bin_positions(Lattice.from_plane(plane, tuple(config["lattice"])), (r, s),
                          valid).observed
