@@ -135,6 +135,8 @@ def main() -> None:
         "ltm_stored_bytes": sum(store_bytes(work / "store.zarr" / n) for n in LTM_STORED
                                 if (work / "store.zarr" / n).exists()),
         "store_bytes": store_bytes(work / "store.zarr"), "ranks": info.get("ranks"),
+        "variable_bytes": {v.name: store_bytes(v) for v in sorted((work / "store.zarr").iterdir())
+                           if v.is_dir()},
         "seconds_per_pixel_solve": info["seconds_per_pixel"],
         "snr_y_db_pixel_subset": snr, "snr_pixels": f"[{SNR_STEP // 2}::{SNR_STEP}] x 2",
         "ltm_subset": args.subset_to,

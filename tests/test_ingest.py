@@ -83,14 +83,14 @@ def test_frame_sink_streams_by_block(tmp_path):
     with pytest.raises(LtmError, match=r"frame 5 is 5x3 pixels; expected 4x3"):
         sink.add(np.zeros((3, 5, 3), np.uint8), True, source="frame 5")
     sink.finish(np.arange(5.0))
-    assert group["frames"].shape == (5, 3, 4)
-    np.testing.assert_allclose(group["frames"][...], 0.2, rtol=1e-6)
+    assert group["frames"].shape == (5, 3, 4) and group["frames"].dtype == np.float16
+    np.testing.assert_allclose(group["frames"][...], 0.2, rtol=2**-11)  # float16
     np.testing.assert_allclose(group["chroma"][...], 0.0, atol=1e-6)
 
 
 def test_layout(ds):
     assert dict(ds.sizes) == {"t": N, "y": H, "x": W, "channel": 2}
-    assert ds.frames.dims == ("t", "y", "x") and ds.frames.dtype == np.float32
+    assert ds.frames.dims == ("t", "y", "x") and ds.frames.dtype == np.float16
     assert ds.chroma.dims == ("y", "x", "channel") and ds.chroma.dtype == np.float32
     for name in ("pose_r", "pose_s", "pose_z"):
         assert ds[name].dims == ("t",) and ds[name].dtype == np.float64

@@ -46,7 +46,7 @@ def _layout() -> dict[str, tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]]:
     pixels = ("y", "x")
     per_cell = tuple((*pixels, *lat) for lat in LATTICES)
     layout = {
-        "frames": ((("t", *pixels),), (F32,)),
+        "frames": ((("t", *pixels),), (F16, F32)),  # float32: stores ingested before float16
         "frame_chroma": ((("channel", "t", *pixels),), (F16,)),
         "pose_valid": ((("t",),), ("bool",)),
         "count": (LATTICES, ("int32",)),

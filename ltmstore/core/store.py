@@ -379,7 +379,8 @@ def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dic
 def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     """Open a store as a lazy :class:`xarray.Dataset`, one Dask chunk per inner Zarr chunk.
 
-    LTM variables stored as float16 (a lossy reconstruction) come back as float32; those stored
+    Frames and LTM variables stored as float16 (frames always; a lossy reconstruction's LTM) come
+    back as float32, so that reductions over them (a mean) accumulate in float32; those stored
     in the factored form (``ltm compact --form factored``) come back as the lazy float32 product
     of their factors, with a light-major view ``ltm_by_light`` computed from the same factors.
 
@@ -406,9 +407,11 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     small = [n for n, v in ds.data_vars.items() if v.dims == ("t",)]  # poses: read them once
     if small:
         ds[small] = ds[small].compute()
-    for name in LTM_VARIABLES:  # a lossy store's float16 LTM computes in float32
+    for name in (*LTM_VARIABLES, *integrity.FRAME_VARIABLES):  # float16 computes in float32
         if name in ds and ds[name].dtype == np.float16:
+            encoding = ds[name].encoding  # how it is stored: chunks, float16
             ds[name] = ds[name].astype(np.float32)
+            ds[name].encoding = encoding
     ds = _derive_factored(ds, group)
     ds.attrs = dict(group.attrs.asdict())
     return ds

@@ -3,7 +3,7 @@
 Layout written (ARCHITECTURE.md section 3.2), for ``n`` frames of ``H x W`` pixels:
 
 * coordinates ``t (t,)`` float64 seconds, ``y (H,)`` and ``x (W,)`` int64, ``channel`` ("cb", "cr");
-* ``frames (t, y, x)`` float32 linear luminance Y (BT.601), chunks
+* ``frames (t, y, x)`` float16 linear luminance Y (BT.601), chunks
   ``(chunk_frames, min(H, 256), min(W, 256))`` (16 x 16 pixels for registered 6D frames);
 * ``pose_r, pose_s, pose_z (t,)`` float64 light position at each frame (NaN where the pose record
   does not cover the frame), plus ``pose_p, pose_q`` for 6D acquisitions; ``pose_valid (t,)`` bool;

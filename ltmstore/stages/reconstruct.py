@@ -472,7 +472,8 @@ def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -
     run = {**run, "tile": run["tile"] or 32}
     if client is not None:
         return _reconstruct(group, client, **run)
-    with dask_client(scheduler, small=is_small(group["frames"].nbytes)) as own:
+    work = group["frames"].size * 4  # the frames' bytes as resampling computes them (float32)
+    with dask_client(scheduler, small=is_small(work)) as own:
         return _reconstruct(group, own, **run)
 
 

@@ -109,7 +109,8 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
     loo = np.array([np.zeros((len(train),) * 2) if a is None else a for a in operators])
     loo32 = loo.astype(np.float32)  # per pixel (expected_error): float32 as the values
     to_lattice = [m.weights(train, cells).astype(np.float32) for m in models]
-    frames = np.asarray(group[FRAMES][:])[valid]  # linear: each tile encodes its own pixels
+    # linear (stored in float16): each tile encodes its own pixels
+    frames = np.asarray(group[FRAMES][:])[valid].astype(np.float32)
     gain = np.ones(len(frames), dtype=np.float32)  # the frames' exposures (surface.exposures)
     plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile or FAR_TILE, chunk_bytes=2**20)
     st.begin_stage(group, "resample")

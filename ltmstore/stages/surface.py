@@ -165,7 +165,7 @@ def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = N
                ) -> np.ndarray:
     """Linear RGB of the valid frames, ``(t, y, x, 3)`` float32; ``luma``: their luminance
     where it is already read."""
-    y = np.asarray(group["frames"][:])[valid] if luma is None else luma
+    y = np.asarray(group["frames"][:])[valid].astype(np.float32) if luma is None else luma
     cb, cr = (np.asarray(group["frame_chroma"][i])[valid].astype(np.float32) for i in (0, 1))
     # written channel by channel into float32: the stacked float64 image (green is computed in
     # float64) took 4x the memory and time, and every fit reads float32
