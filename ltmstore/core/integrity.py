@@ -46,7 +46,8 @@ def _layout() -> dict[str, tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]]:
     pixels = ("y", "x")
     per_cell = tuple((*pixels, *lat) for lat in LATTICES)
     layout = {
-        "frames": ((("t", *pixels),), (F16, F32)),  # float32: stores ingested before float16
+        # measurements: float16 (float32 frames and samples in stores written before)
+        "frames": ((("t", *pixels),), (F16, F32)),
         "frame_chroma": ((("channel", "t", *pixels),), (F16,)),
         "pose_valid": ((("t",),), ("bool",)),
         "count": (LATTICES, ("int32",)),
@@ -57,7 +58,7 @@ def _layout() -> dict[str, tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]]:
         "roughness": ((pixels,), (F32,)),
         **{f"pose_{k}": ((("t",),), (F64,)) for k in "rszpq"},
         **{k: (((*pixels, "channel"),), (F32,)) for k in ("chroma", "chroma_spread")},
-        **{k: (per_cell, (F32,)) for k in ("samples", "samples_cb", "samples_cr")},
+        **{k: (per_cell, (F16, F32)) for k in ("samples", "samples_cb", "samples_cr")},
         **{k: (per_cell, (F32, F16)) for k in ("ltm", "ltm_cb", "ltm_cr", "ltm_by_light",
                                                 "ltm_cb_by_light", "ltm_cr_by_light")},
         **{k: ((pixels, (*pixels, "color")), (F32,)) for k in ("albedo", "specular", "ambient")},

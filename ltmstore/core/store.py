@@ -55,6 +55,7 @@ STAGE_VARIABLES = {
 # The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
 LTM_VARIABLES = ("ltm", "ltm_cb", "ltm_cr", "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light")
+SAMPLE_VARIABLES = ("samples", "samples_cb", "samples_cr")
 
 
 def _now() -> str:
@@ -379,8 +380,8 @@ def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dic
 def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     """Open a store as a lazy :class:`xarray.Dataset`, one Dask chunk per inner Zarr chunk.
 
-    Frames and LTM variables stored as float16 (frames always; a lossy reconstruction's LTM) come
-    back as float32, so that reductions over them (a mean) accumulate in float32; those stored
+    Variables stored as float16 (the frames and samples always, a lossy reconstruction's LTM)
+    come back as float32, so that reductions over them (a mean) accumulate in float32; those stored
     in the factored form (``ltm compact --form factored``) come back as the lazy float32 product
     of their factors, with a light-major view ``ltm_by_light`` computed from the same factors.
 
@@ -407,7 +408,7 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     small = [n for n, v in ds.data_vars.items() if v.dims == ("t",)]  # poses: read them once
     if small:
         ds[small] = ds[small].compute()
-    for name in (*LTM_VARIABLES, *integrity.FRAME_VARIABLES):  # float16 computes in float32
+    for name in (*LTM_VARIABLES, *integrity.FRAME_VARIABLES, *SAMPLE_VARIABLES):  # in float32
         if name in ds and ds[name].dtype == np.float16:
             encoding = ds[name].encoding  # how it is stored: chunks, float16
             ds[name] = ds[name].astype(np.float32)

@@ -268,7 +268,7 @@ def _heldout_budget(error: zarr.Array, samples: zarr.Array, kept: dict,
     """:func:`ltmstore.core.factored.heldout_budget` of the tile at ``corner``: the stored
     expected error (relative to the observed range) times the range of its samples."""
     where = tuple(slice(c, c + n) for c, n in zip(corner, values.shape[:2], strict=True))
-    batch = np.asarray(samples[where]).reshape(-1, *samples.shape[2:])
+    batch = np.asarray(samples[where], dtype=np.float32).reshape(-1, *samples.shape[2:])
     rms = np.asarray(error[where], np.float64).ravel() * observed_range(batch)
     allowed = factored.heldout_budget(rms, int(np.prod(values.shape[2:])))
     total = float(np.sum(np.asarray(values, np.float64) ** 2))

@@ -24,6 +24,7 @@ from ltmstore.core.dims import (
     CHROMA_SPREAD,
     FRAME_CHROMA,
     FRAMES,
+    OBSERVATION_DTYPE,
     PIXEL_DIMS,
     POSES,
     VIEW_DIMS,
@@ -45,11 +46,6 @@ SPATIAL_CHUNK = 256
 # whole time axis at once (a 6D lattice is too large for per-time-block partial sums per tile).
 REGISTERED_SPATIAL_CHUNK = 16
 MIN_VALID_FRAMES = 8
-# Frames are stored in float16, luminance and chroma: its rounding (at most 2^-11 of a value,
-# -71 dB RMS) lies below one step of an 8-bit video and far below a camera's noise, and float16
-# luminance takes 2.4x less disk than float32 (a Notre Dame-b chunk: 2.7 against 6.5 MB).
-# Readers compute in float32.
-FRAME_DTYPE = np.float16
 # Longest pose interval interpolated across: a tracker's dropouts (60 Hz, up to 10 reports)
 # are bridged, a light lost for longer (no board in phone A's view) is not guessed.
 MAX_POSE_GAP_S = 0.25
@@ -196,8 +192,8 @@ class FrameSink:
         self._luts = {bits: transfer_lut(transfer, bits=bits) for bits in (8, 16)}
         self._chunk_frames = _positive_int(chunk_frames, "chunk_frames")
         self._frames: zarr.Array | None = None
-        self._buffer = np.empty((0, 0, 0), dtype=FRAME_DTYPE)
-        self._chroma_buffer = np.empty((2, 0, 0, 0), dtype=FRAME_DTYPE)
+        self._buffer = np.empty((0, 0, 0), dtype=OBSERVATION_DTYPE)
+        self._chroma_buffer = np.empty((2, 0, 0, 0), dtype=OBSERVATION_DTYPE)
         self._chroma: zarr.Array | None = None
         self._sums = np.zeros((3, 0, 0))  # sum over valid frames of Y, Cb, Cr
         self._moments = np.zeros((5, 0, 0))  # sums of Y^2, Cb Y, Cr Y, Cb^2, Cr^2
@@ -291,17 +287,18 @@ class FrameSink:
     def _start(self, shape: tuple[int, int]) -> None:
         self._sums = np.zeros((3, *shape))
         self._moments = np.zeros((5, *shape))
-        self._buffer = np.empty((self._chunk_frames, *shape), dtype=FRAME_DTYPE)
-        self._chroma_buffer = np.empty((2, self._chunk_frames, *shape), dtype=FRAME_DTYPE)
+        self._buffer = np.empty((self._chunk_frames, *shape), dtype=OBSERVATION_DTYPE)
+        self._chroma_buffer = np.empty((2, self._chunk_frames, *shape), dtype=OBSERVATION_DTYPE)
         chunks = (self._chunk_frames, *self._spatial_chunks())
         self._frames = create_variable(
-            self._group, FRAMES, (T, *PIXEL_DIMS), (0, *shape), chunks=chunks, dtype=FRAME_DTYPE,
+            self._group, FRAMES, (T, *PIXEL_DIMS), (0, *shape), chunks=chunks,
+            dtype=OBSERVATION_DTYPE,
             attrs={"long_name": "linear luminance Y (BT.601 weights)"},
             compressors=checksum.FAST_COMPRESSORS,
         )
         self._chroma = create_variable(
             self._group, FRAME_CHROMA, (CHANNEL, T, *PIXEL_DIMS), (2, 0, *shape),
-            chunks=(1, *chunks), dtype=FRAME_DTYPE,
+            chunks=(1, *chunks), dtype=OBSERVATION_DTYPE,
             attrs={"long_name": "linear Cb, Cr per frame (for a colour LTM)"},
             compressors=checksum.FAST_COMPRESSORS,
         )

@@ -57,7 +57,7 @@ def read_pixels(group: zarr.Group, plan: TilePlan) -> tuple[np.ndarray, np.ndarr
             0, min(tile, size - t * tile) - 1, per).round().astype(int)) for t in tiles])
 
     rows, cols = picks(plan.image[0], plan.tile[0]), picks(plan.image[1], plan.tile[1])
-    block = group[SAMPLES].get_orthogonal_selection((rows, cols))
+    block = group[SAMPLES].get_orthogonal_selection((rows, cols)).astype(np.float32)
     rr, cc = np.meshgrid(rows, cols, indexing="ij")
     return block.reshape(len(rows) * len(cols), -1), rr.ravel(), cc.ravel()
 

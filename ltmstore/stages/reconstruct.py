@@ -32,6 +32,7 @@ from ltmstore.core.dims import (
     EXPECTED_ERROR,
     FRAME_CHROMA,
     LTM,
+    OBSERVATION_DTYPE,
     SAMPLES,
     UNSUPPORTED,
     Lattice,
@@ -228,7 +229,7 @@ def choose_for_image(samples: zarr.Array, plan: TilePlan, geometry: Geometry,
     per_tile = -(-IMAGE_PIXELS // len(picks))
     for index in picks:
         (y0, y1), (x0, x1) = plan_rows(plan, *divmod(int(index), tx))
-        block = np.asarray(samples[y0:y1, x0:x1])
+        block = np.asarray(samples[y0:y1, x0:x1], dtype=np.float32)
         flat = block.reshape(-1, *block.shape[2:])
         take = np.sort(rng.choice(len(flat), size=min(per_tile, len(flat)), replace=False))
         rows.append(flat[take])
@@ -284,10 +285,12 @@ def _write_samples(group: zarr.Group, name: str, frames: da.Array, binning: Binn
                    plan: TilePlan, client: Client) -> zarr.Array:
     lattice = binning.lattice
     samples = st.create_variable(group, name, ("y", "x", *lattice.dims),
-                                 (*plan.image, *lattice.shape), chunks=plan.block)
+                                 (*plan.image, *lattice.shape), chunks=plan.block,
+                                 dtype=OBSERVATION_DTYPE)
     import dask.array as da
 
-    binned = bin_frames(frames, binning, tile=plan.tile).rechunk(plan.block, method="tasks")
+    binned = (bin_frames(frames, binning, tile=plan.tile).rechunk(plan.block, method="tasks")
+              .astype(OBSERVATION_DTYPE))
     client.compute(da.store(binned, samples, lock=False, compute=False)).result()
     return samples
 
@@ -804,7 +807,7 @@ def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TileP
     chosen = None
     if method == AUTO and todo.any():  # once for the image, not per tile
         chosen = choose_for_image(samples, plan, geometry, extent)
-    tiles = da.from_zarr(samples, chunks=plan.block)
+    tiles = da.from_zarr(samples, chunks=plan.block).astype(np.float32)
     records = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
                                geometry=geometry, auto=auto, extent=extent, chosen=chosen,
                                fractions=fractions, drop_axis=list(range(2, tiles.ndim)),
