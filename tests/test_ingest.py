@@ -194,7 +194,10 @@ def test_existing_store_refused_then_overwritten(acq_dir, ingested, tmp_path):
     report = ingest(acq_dir, store, overwrite=True, progress=True, z_tolerance=0.2)
     assert report["rejected"]["out_of_plane"] == 0
     assert report["n_valid"] == EXPECTED["n_valid"] + EXPECTED["rejected"]["out_of_plane"]
-    assert open_store(store).frames.encoding["chunks"] == (32, H, W)
+    frames = open_store(store).frames  # stored in float16, served in float32 as stored
+    assert frames.encoding["chunks"] == (32, H, W) and frames.encoding["dtype"] == np.float16
+    assert frames.dtype == np.float32 and float(frames.mean()) == pytest.approx(
+        float(np.mean(zarr.open_array(store / "frames")[...], dtype=np.float64)), rel=1e-6)
 
 
 def test_mp4(tmp_path):

@@ -47,9 +47,10 @@ def test_store_is_plain_xarray_with_the_contract_layout(flow_run):
     store, _, _ = flow_run
     ds = xr.open_zarr(store, consolidated=False)
     assert ds["ltm"].dims == ("y", "x", "r", "s") and ds["ltm"].dtype == np.float32
-    assert ds["samples"].dims == ("y", "x", "r", "s")
+    assert ds["samples"].dims == ("y", "x", "r", "s") and ds["samples"].dtype == np.float16
     assert ds["count"].dims == ("r", "s")
-    assert ds["frames"].dims == ("t", "y", "x")
+    assert ds["frames"].dims == ("t", "y", "x") and ds["frames"].dtype == np.float16
+    assert open_store(store)["samples"].dtype == np.float32  # what every reader computes in
     assert ds["chroma"].dims == ("y", "x", "channel")
     stages = ds.attrs["stages"]
     assert all(stages[s]["complete"] for s in ("ingest", "resample", "reconstruct"))

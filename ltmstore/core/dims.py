@@ -37,7 +37,7 @@ SAMPLES = "samples"  # (y, x, r, s[, p, q]) binned means, NaN where unobserved
 # The measurements (frames, frame_chroma, samples and the chroma samples) are stored in float16:
 # its rounding (at most 2^-11 of a value, -71 dB RMS) lies below one step of an 8-bit video and
 # far below a camera's noise, and it takes about half the disk of float32 (the Toys-size frames
-# 273 against 533 MB). Readers compute in float32; open_store serves them as float32. Stores
+# 272 against 532 MB). Readers compute in float32; open_store serves them as float32. Stores
 # written before hold float32 frames and samples, read the same way.
 OBSERVATION_DTYPE = np.float16
 COUNT = "count"  # (r, s[, p, q]) number of frames per cell

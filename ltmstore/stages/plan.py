@@ -145,8 +145,8 @@ def check_fits(plan: TilePlan, store: str | os.PathLike, *, what: str, ltm_copie
 
 # Stored bytes per float32 byte of the dense form, measured on Notre Dame-b (1024 x 1024 px,
 # 32 x 80 cells, 2026-11-27): the ltm and its light-major copy (Blosc lz4) LTM_STORED, the
-# samples (70 % of cells NaN, Zstd) SAMPLES_STORED.
-LTM_STORED, SAMPLES_STORED = 0.77, 0.31
+# samples (float16, 70 % of cells NaN, Zstd; 0.31 in float32) SAMPLES_STORED.
+LTM_STORED, SAMPLES_STORED = 0.77, 0.17
 # `--form auto` stores the dense form while its estimate takes at most this share of the free
 # disk (room for the estimate's error and for everything else on the disk), else the factors.
 DENSE_DISK_SHARE = 0.5
