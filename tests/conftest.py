@@ -66,7 +66,9 @@ def small_store(small_acquisition, tmp_path_factory, dask_cluster):
     from ltmstore.stages.reconstruct import reconstruct
 
     store = tmp_path_factory.mktemp("store") / "store.zarr"
-    ingest(small_acquisition, store, progress=False)
+    # its frames' chroma kept: colour fixtures force a colour LTM from it (the relief's colour is
+    # illumination invariant, so ingest would otherwise remove it)
+    ingest(small_acquisition, store, progress=False, keep_chroma=True)
     with Client(dask_cluster) as client:
         reconstruct(store, client=client, lattice=(16, 16), progress=False)
     return store

@@ -156,6 +156,25 @@ def test_constant_colour_is_illumination_invariant(ds, ingested):
     assert decision["invariant"] and decision["variation"] < 0.02
 
 
+def test_invariant_colour_keeps_no_frame_chroma(acq_dir, ingested, tmp_path):
+    """Only a colour LTM reads each frame's chroma: removed where the colour is invariant, so a
+    forced colour LTM is refused with the way out; --keep-chroma keeps it."""
+    from ltmstore.stages.reconstruct import reconstruct
+
+    store, report, _ = ingested
+    assert report["chroma"]["frames_kept"] is False and not (store / "frame_chroma").exists()
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(store, copy)
+    with pytest.raises(LtmError, match=r"no per-frame chroma for a colour LTM; ingest found its "
+                       r"colour illumination invariant \(variation 0\.0\d\d <= 0\.05\) and "
+                       r"kept none; ltm ingest --keep-chroma keeps it$"):
+        reconstruct(copy, color=True, progress=False)
+    assert tree_hashes(copy) == tree_hashes(store)  # nothing written
+    kept = ingest(acq_dir, tmp_path / "kept.zarr", progress=False, keep_chroma=True)
+    assert kept["chroma"]["frames_kept"] is True
+    assert (tmp_path / "kept.zarr" / "frame_chroma").is_dir()
+
+
 def test_chroma_that_changes_with_the_light_needs_a_colour_ltm():
     energy = np.full((4, 4), 2.0)
     assert chroma_decision(np.zeros((2, 4, 4)), energy)["invariant"]

@@ -68,6 +68,10 @@ def register(sub) -> None:
                    help="camera B's exposure and white balance were locked: a drift of its "
                    "brightness that the video cannot measure is left uncorrected instead of "
                    "refused (a measured one is still corrected, auto exposure still refused)")
+    p.add_argument("--keep-chroma", action="store_true",
+                   help="keep every frame's chroma even when the colour does not change with "
+                   "the light (then only a colour LTM forced with reconstruct --color reads it; "
+                   "without this flag it is removed, half the frames' bytes)")
     p.set_defaults(func=cmd_ingest)
 
     p = sub.add_parser("ingest-rti", help="classic RTI capture (images + .lp) -> store",
@@ -256,7 +260,7 @@ def cmd_ingest(a: argparse.Namespace) -> None:
 
     print_json(ingest(a.acquisition, a.store, overwrite=a.overwrite,
                       allow_dropped=a.allow_dropped_frames,
-                      exposure_locked=a.exposure_locked))
+                      exposure_locked=a.exposure_locked, keep_chroma=a.keep_chroma))
 
 
 def cmd_ingest_rti(a: argparse.Namespace) -> None:

@@ -268,8 +268,10 @@ def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
     need: dict[str, str] = {}
     if "n_frames" in done("ingest"):  # a store made by ltm ingest (not by hand, in a notebook)
         dropped = FRAME_VARIABLES if done("compact").get("frames_dropped") else ()
-        names = ["frames", "frame_chroma", "pose_r", "pose_s", "pose_z", "pose_valid", "chroma",
-                 "chroma_spread", *(["pose_p", "pose_q"] if "view_plane" in acquisition else [])]
+        kept_chroma = done("ingest").get("chroma", {}).get("frames_kept", True)
+        names = ["frames", *(["frame_chroma"] if kept_chroma else []), "pose_r", "pose_s",
+                 "pose_z", "pose_valid", "chroma", "chroma_spread",
+                 *(["pose_p", "pose_q"] if "view_plane" in acquisition else [])]
         need.update({n: "ingest" for n in names if n not in dropped})
     reconstruct = done("reconstruct")
     colour = ["cb", "cr"] if reconstruct.get("color") else []

@@ -327,8 +327,13 @@ def write_lights(group: zarr.Group, lights: Lights) -> None:
 
 
 def finish_ingest(group: zarr.Group, sink: FrameSink, t: np.ndarray, lights: Lights, *,
-                  acquisition: dict, info: dict, started: float) -> dict:
+                  acquisition: dict, info: dict, started: float,
+                  keep_chroma: bool = True) -> dict:
     """Check the valid frame count, write coordinates, poses, chroma, provenance; complete.
+
+    Without ``keep_chroma``, ``frame_chroma`` is removed when the colour is illumination
+    invariant (:func:`chroma_decision`): only a colour LTM reads it, and the default
+    reconstruction then writes none (the record's ``chroma.frames_kept`` says which).
 
     Returns the stage record (also stored under stage ``ingest``).
     """
@@ -340,6 +345,9 @@ def finish_ingest(group: zarr.Group, sink: FrameSink, t: np.ndarray, lights: Lig
         raise LtmError(f"all {n_valid} valid frames are black (no light reached the camera); "
                        "expected a capture lit by the moving light")
     chroma = sink.finish(t)
+    chroma["frames_kept"] = keep_chroma or not chroma["invariant"]
+    if not chroma["frames_kept"]:
+        del group[FRAME_CHROMA]
     write_lights(group, lights)
     group.attrs[ACQUISITION_ATTR] = acquisition
     record = {"n_frames": sink.n, "n_valid": n_valid, "rejected": lights.rejected(),

@@ -67,7 +67,8 @@ Z_TOLERANCE_FRACTION = 0.05
 def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: bool = False,
            z_tolerance: float | None = None, progress: bool = True,
            chunk_frames: int = DEFAULT_CHUNK_FRAMES, hashes: dict[str, str] | None = None,
-           allow_dropped: bool = False, exposure_locked: bool = False) -> dict:
+           allow_dropped: bool = False, exposure_locked: bool = False,
+           keep_chroma: bool = False) -> dict:
     """Decode an acquisition folder's video and poses into a new store.
 
     Parameters
@@ -96,6 +97,10 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         cannot measure (a path that rarely comes back to the same places) is left uncorrected
         instead of refused (recorded as ``drift.exposure_locked``); a measured one is still
         corrected, and auto exposure still refused.
+    keep_chroma : bool, default False
+        Keep ``frame_chroma`` (each frame's Cb, Cr) even when the colour is illumination
+        invariant, for a colour LTM asked for with ``reconstruct(color=True)``. Otherwise it is
+        kept only where the colour varies with the light (half the measurements' bytes).
 
     Returns
     -------
@@ -174,7 +179,8 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         if corrections is not None and corrections.lead_end is not None:
             lights = replace(lights, led_off=np.array(index) < corrections.lead_end)
         record = finish_ingest(group, sink, t, _judge_occlusion(lights, sink, rig),
-                               acquisition=provenance, info=info, started=started)
+                               acquisition=provenance, info=info, started=started,
+                               keep_chroma=keep_chroma)
     return {**record, "store": str(store)}
 
 

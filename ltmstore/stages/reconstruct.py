@@ -401,8 +401,12 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     elif color is None:
         color = not st.stages(group)["ingest"].get("chroma", {}).get("invariant", True)
     if color and FRAME_CHROMA not in group:
-        raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; "
-                       "ingest it again with this version")
+        chroma = st.stages(group)["ingest"].get("chroma", {})
+        why = (f"ingest found its colour illumination invariant (variation "
+               f"{chroma['variation']:.3f} <= {chroma['tolerance']}) and kept none; "
+               "ltm ingest --keep-chroma keeps it" if chroma.get("frames_kept") is False
+               else "ingest it again with this version")
+        raise LtmError(f"store {str(path)!r} has no per-frame chroma for a colour LTM; {why}")
     form_choice = None
     estimate = partial(_dense_estimate, path, group, lattice=lattice, delta_rs=delta_rs,
                        channels=3 if color else 1, light_major=light_major, tile=tile)
