@@ -71,7 +71,7 @@ def register(sub) -> None:
     p.add_argument("--keep-chroma", action="store_true",
                    help="keep every frame's chroma even when the colour does not change with "
                    "the light (then only a colour LTM forced with reconstruct --color reads it; "
-                   "without this flag it is removed, half the frames' bytes)")
+                   "without this flag it is removed: two thirds of the per-frame bytes)")
     p.set_defaults(func=cmd_ingest)
 
     p = sub.add_parser("ingest-rti", help="classic RTI capture (images + .lp) -> store",

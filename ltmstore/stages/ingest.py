@@ -100,7 +100,8 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     keep_chroma : bool, default False
         Keep ``frame_chroma`` (each frame's Cb, Cr) even when the colour is illumination
         invariant, for a colour LTM asked for with ``reconstruct(color=True)``. Otherwise it is
-        kept only where the colour varies with the light (half the measurements' bytes).
+        kept only where the colour varies with the light (it is two thirds of the per-frame
+        bytes).
 
     Returns
     -------
