@@ -25,6 +25,7 @@ from zarr.abc.store import Store
 from zarr.storage import WrapperStore
 
 from ltmstore.core import checksum, factored, integrity
+from ltmstore.core.dims import CHROMA_SAMPLES, SAMPLES
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lock import locked
 from ltmstore.core.provenance import software, summary
@@ -55,7 +56,7 @@ STAGE_VARIABLES = {
 # The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
 LTM_VARIABLES = ("ltm", "ltm_cb", "ltm_cr", "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light")
-SAMPLE_VARIABLES = ("samples", "samples_cb", "samples_cr")
+SAMPLE_VARIABLES = (SAMPLES, *CHROMA_SAMPLES.values())
 
 
 def _now() -> str:
