@@ -88,6 +88,35 @@ def test_frame_sink_streams_by_block(tmp_path):
     np.testing.assert_allclose(group["chroma"][...], 0.0, atol=1e-6)
 
 
+def test_frame_sink_sums_as_numpy_does(tmp_path):
+    """The fused per-frame pass (stored planes, chroma sums and moments over the valid frames,
+    NaN as unobserved, brightness) gives what plain NumPy gives, NaN pixels included."""
+    rng = np.random.default_rng(3)
+    ycc = rng.uniform([0.05, -0.1, -0.1], [0.9, 0.1, 0.1], (6, 5, 7, 3)).astype(np.float32)
+    ycc[2, 1:3, 4] = np.nan  # registered frames leave unobserved pixels NaN
+    valid = np.array([True, True, True, False, True, True])
+    group = zarr.open_group(str(tmp_path / "g.zarr"), mode="w", zarr_format=3)
+    sink = FrameSink(group, transfer="linear", chunk_frames=4)
+    for frame, ok in zip(ycc, valid, strict=True):
+        sink.add(np.zeros((5, 7, 3), np.uint8), bool(ok), source="f", ycc=frame)
+    decision = sink.finish(np.arange(6.0))
+    np.testing.assert_array_equal(group["frames"][...], ycc[..., 0].astype(np.float16))
+    np.testing.assert_array_equal(group["frame_chroma"][...],
+                                  np.moveaxis(ycc[..., 1:], -1, 0).astype(np.float16))
+    np.testing.assert_allclose(sink.brightness, np.nanmean(ycc[..., 0], axis=(1, 2)), rtol=1e-6)
+    y, cb, cr = np.moveaxis(np.nan_to_num(ycc[valid]).astype(np.float64), -1, 0)
+    np.testing.assert_allclose(group["chroma"][...],
+                               np.stack([cb.sum(0) / y.sum(0), cr.sum(0) / y.sum(0)], -1),
+                               rtol=1e-6)
+    residual = [np.maximum((c * c).sum(0) - (c * y).sum(0) ** 2 / (y * y).sum(0), 0)
+                for c in (cb, cr)]
+    np.testing.assert_allclose(group["chroma_spread"][...],
+                               np.sqrt(np.stack(residual, -1) / (y * y).sum(0)[..., None]),
+                               rtol=1e-5, atol=1e-7)
+    assert decision["variation"] == pytest.approx(
+        np.sqrt(sum(r.sum() for r in residual) / (y * y).sum()), rel=1e-6)
+
+
 def test_layout(ds):
     assert dict(ds.sizes) == {"t": N, "y": H, "x": W, "channel": 2}
     assert ds.frames.dims == ("t", "y", "x") and ds.frames.dtype == np.float16

@@ -55,6 +55,19 @@ def transfer_lut(transfer: str, bits: int = 8) -> np.ndarray:
     return decode(codes if bits == 8 else codes * (255 / (2**bits - 1)), transfer)
 
 
+def linearise(code: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """``lut[code]``: the linear light of an image's code values by a :func:`transfer_lut`
+    (float32). 8-bit images of up to four channels go through OpenCV's table lookup, about 2x
+    NumPy's gather on a 4K frame; anything else through NumPy."""
+    code = np.asarray(code)
+    if code.dtype == np.uint8 and lut.shape == (256,) and code.size and (
+            code.ndim == 2 or (code.ndim == 3 and code.shape[2] <= 4)):
+        import cv2
+
+        return cv2.LUT(code, lut.astype(np.float32, copy=False).reshape(1, 256))
+    return lut[code]
+
+
 def encode(linear: np.ndarray, transfer: str) -> np.ndarray:
     """Linear light to 8-bit code values (rounded, clipped)."""
     _check(transfer)

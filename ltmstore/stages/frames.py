@@ -11,8 +11,10 @@ import time
 from dataclasses import dataclass, field
 from functools import partial
 
+import cv2
 import numpy as np
 import zarr
+from numba import njit
 
 from ltmstore.capture.acquisition import Poses
 from ltmstore.capture.register import ViewRig, rectify
@@ -36,7 +38,7 @@ from ltmstore.core.dims import (
 )
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import complete_stage, create_variable, write_coord
-from ltmstore.core.transfer import transfer_lut
+from ltmstore.core.transfer import linearise, transfer_lut
 
 STAGE = "ingest"
 ACQUISITION_ATTR = "acquisition"
@@ -210,7 +212,7 @@ class FrameSink:
         """Linear Y, Cb, Cr ``(H, W, 3)`` float32 of an RGB frame, uint8 or uint16 (16-bit
         images keep 16 bits). Changes nothing in the sink, so decoding threads may convert
         frames ahead of :meth:`add`."""
-        return rgb_to_ycbcr(self._luts[16 if rgb.dtype == np.uint16 else 8][rgb])
+        return rgb_to_ycbcr(linearise(rgb, self._luts[16 if rgb.dtype == np.uint16 else 8]))
 
     def add(self, rgb8: np.ndarray, valid: bool, *, source: str,
             view: tuple[float, float] | None = None, ycc: np.ndarray | None = None) -> None:
@@ -229,20 +231,17 @@ class FrameSink:
             ycc = self.convert(rgb8)
         if self._rig is not None:
             ycc = rectify(ycc, self._rig, *(view if view is not None else (np.nan, np.nan)))
-            if valid:
-                self.observed[0] += float(np.isfinite(ycc[..., 0]).mean())
-                self.observed[1] += 1
         if self._frames is None:
             self._start(ycc.shape[:2])
-        self._buffer[self._pending] = ycc[..., 0]
-        self.brightness.append(float(np.nanmean(ycc[..., 0])) if np.isfinite(ycc[..., 0]).any()
-                               else np.nan)
-        self._chroma_buffer[:, self._pending] = np.moveaxis(ycc[..., 1:], -1, 0)
-        if valid:
-            ycc = np.moveaxis(ycc if self._rig is None else np.nan_to_num(ycc), -1, 0)
-            self._sums += ycc
-            for moment, (a, b) in zip(self._moments, MOMENTS, strict=True):
-                moment += ycc[a] * ycc[b]
+        if self._rig is not None and valid:
+            self.observed[0] += float(np.isfinite(ycc[..., 0]).mean())
+            self.observed[1] += 1
+        total, count = _accumulate(ycc, self._planes, self._sums, self._moments, valid)
+        self.brightness.append(total / count if count else np.nan)
+        _to_half(self._planes[0], self._buffer[self._pending])
+        for plane, out in zip(self._planes[1:], self._chroma_buffer[:, self._pending],
+                              strict=True):
+            _to_half(plane, out)
         self._pending += 1
         self.n += 1
         if self._pending == self._chunk_frames:
@@ -287,6 +286,7 @@ class FrameSink:
     def _start(self, shape: tuple[int, int]) -> None:
         self._sums = np.zeros((3, *shape))
         self._moments = np.zeros((5, *shape))
+        self._planes = np.empty((3, *shape), dtype=np.float32)
         self._buffer = np.empty((self._chunk_frames, *shape), dtype=OBSERVATION_DTYPE)
         self._chroma_buffer = np.empty((2, self._chunk_frames, *shape), dtype=OBSERVATION_DTYPE)
         chunks = (self._chunk_frames, *self._spatial_chunks())
@@ -312,6 +312,48 @@ class FrameSink:
             self._frames.append(self._buffer[: self._pending], axis=0)
             self._chroma.append(self._chroma_buffer[:, : self._pending], axis=1)
             self._pending = 0
+
+
+def _to_half(plane: np.ndarray, out: np.ndarray) -> None:
+    """``out[...] = plane`` for a float32 ``(H, W)`` plane: into float16 by OpenCV's vectorised
+    conversion (bit for bit NumPy's rounding, 4x faster than its cast on a 4K frame)."""
+    if out.dtype == np.float16 and out.flags.c_contiguous:
+        cv2.multiply(plane, 1.0, dst=out, dtype=cv2.CV_16F)
+    else:
+        out[...] = plane
+
+
+@njit(cache=True, nogil=True)
+def _accumulate(ycc: np.ndarray, planes: np.ndarray, sums: np.ndarray, moments: np.ndarray,
+                valid: bool) -> tuple[float, int]:
+    """One pass over a frame's Y, Cb, Cr ``(H, W, 3)`` float32: copy them into ``planes``
+    ``(3, H, W)`` and, for a valid frame, add them (NaN as 0) and their :data:`MOMENTS` (float32
+    products) into ``sums`` and ``moments`` (float64). Returns the sum and count of finite Y.
+
+    Fused, it reads each pixel once where NumPy passed over the frame about 20 times: 4x
+    faster on a 4K frame (at 4K the frame's arithmetic, not decoding, bounds ingest)."""
+    total, count = 0.0, 0
+    zero = np.float32(0)
+    for i in range(ycc.shape[0]):
+        for j in range(ycc.shape[1]):
+            y, cb, cr = ycc[i, j, 0], ycc[i, j, 1], ycc[i, j, 2]
+            planes[0, i, j], planes[1, i, j], planes[2, i, j] = y, cb, cr
+            if y == y:
+                total += y
+                count += 1
+            if valid:
+                y = y if y == y else zero
+                cb = cb if cb == cb else zero
+                cr = cr if cr == cr else zero
+                sums[0, i, j] += y
+                sums[1, i, j] += cb
+                sums[2, i, j] += cr
+                moments[0, i, j] += y * y
+                moments[1, i, j] += cb * y
+                moments[2, i, j] += cr * y
+                moments[3, i, j] += cb * cb
+                moments[4, i, j] += cr * cr
+    return total, count
 
 
 def write_lights(group: zarr.Group, lights: Lights) -> None:

@@ -30,6 +30,7 @@ from ltmstore.capture.undistort import Undistorter
 from ltmstore.capture.video import VideoReader
 from ltmstore.core.dims import Plane, rgb_to_ycbcr
 from ltmstore.core.errors import LtmError, LtmWarning
+from ltmstore.core.transfer import linearise
 from ltmstore.stages.ambient import ambient_floor, ambient_image
 from ltmstore.stages.drift import DriftEstimate, estimate_drift
 from ltmstore.stages.frames import Lights
@@ -84,7 +85,7 @@ def scan_video(path: Path, lut: np.ndarray, *, allow_dropped: bool) -> Scan:
         for i, rgb in video.frames():
             if keep is None:
                 keep = max(1, min(int(HEAD_S * video.fps), HEAD_BYTES // max(rgb.nbytes, 1)))
-            linear = lut[rgb]
+            linear = linearise(rgb, lut)
             small = cv2.resize(linear, (BLOCK_GRID, BLOCK_GRID), interpolation=cv2.INTER_AREA)
             index.append(i)
             blocks.append(small.reshape(-1, 3))
@@ -108,7 +109,7 @@ class Corrections:
 
     def linear(self, i: int, rgb: np.ndarray, lut: np.ndarray, video: Path) -> np.ndarray:
         """Corrected linear Y, Cb, Cr ``(H, W, 3)`` float32 of frame ``i``."""
-        linear = lut[rgb]
+        linear = linearise(rgb, lut)
         if self.undistort is not None:
             self.undistort.check_size(rgb, video)
             linear = self.undistort.apply(linear)
