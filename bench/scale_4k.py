@@ -86,8 +86,10 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     for name in ("reference", "4k"):
         if args.only in (None, name):
-            result["runs"][name] = _run(work / name, plan_args, made["exposure"])
-            (out / "scale_4k.json").write_text(json.dumps(result, indent=2) + "\n")
+            run = result["runs"][name] = {}
+            _run(work / name, plan_args, made["exposure"], run,
+                 save=lambda: (out / "scale_4k.json").write_text(json.dumps(result, indent=2)
+                                                                 + "\n"))
     print(json.dumps(result, indent=2))
 
 
@@ -165,33 +167,41 @@ def _variable_bytes(store: Path) -> dict[str, int]:
     return {v.name: store_bytes(v) for v in sorted(store.iterdir()) if v.is_dir()}
 
 
-def _run(folder: Path, plan_args: dict, exposure: float) -> dict:
+def _run(folder: Path, plan_args: dict, exposure: float, run: dict, save) -> None:
+    """The three commands on ``folder``'s capture, then the measures of their store, into
+    ``run`` (``save()`` after each step, so that a failure keeps what was measured)."""
     store = folder / "store.zarr"
     shutil.rmtree(store, ignore_errors=True)
-    ingest = _command(["ingest", str(folder / "acq"), str(store), "--exposure-locked"])
-    reconstruct = _command(["reconstruct", str(store)])
-    before = {"store_bytes": store_bytes(store), "variable_bytes": _variable_bytes(store)}
-    compact = _command(["compact", str(store)])
+    for step, args in (("ingest", ["ingest", str(folder / "acq"), str(store),
+                                   "--exposure-locked"]),
+                       ("reconstruct", ["reconstruct", str(store)]),
+                       ("compact", ["compact", str(store)])):
+        if step == "compact":
+            run["before_compact"] = {"store_bytes": store_bytes(store),
+                                     "variable_bytes": _variable_bytes(store)}
+        run[step] = _command(args)
+        save()
+    run["both_wall_s"] = round(run["ingest"]["wall_s"] + run["reconstruct"]["wall_s"], 1)
     record = st.stages(st.open_group(store, mode="r"))
     ltm = open_store(store)["ltm"]
     lights = [(r, s, PLANE.height) for r in ltm["r"].values for s in ltm["s"].values]
     sub = slice(SNR_STEP // 2, None, SNR_STEP)
     rows, cols = (np.arange(n)[sub] * plan_args["size"] // n for n in ltm.shape[:2])
-    estimate = ltm[sub, sub].values
+    estimate = np.concatenate([ltm.isel(y=band, x=np.arange(ltm.shape[1])[sub]).values
+                               for band in np.array_split(np.arange(ltm.shape[0])[sub], 9)])
     plan = plan_simulation(**plan_args)
     truth = np.stack([frame[rows][:, cols] @ LUMA.astype(np.float32)
                       for frame in iter_frames(plan.scene, lights)], axis=-1)
     truth = truth.reshape(estimate.shape) * exposure
-    return {"image": list(ltm.shape[:2]), "lattice": list(ltm.shape[2:]),
-            "ingest": ingest, "reconstruct": reconstruct, "compact": compact,
-            "both_wall_s": round(ingest["wall_s"] + reconstruct["wall_s"], 1),
-            "stage_records": {k: record.get(k) for k in ("ingest", "resample", "reconstruct",
-                                                         "compact")},
-            "before_compact": before, "store_bytes": store_bytes(store),
-            "variable_bytes": _variable_bytes(store),
-            "relight_point_light": relight_cost(store, random_lights(PLANE.to_json(), 5)),
-            "snr_y_db_pixel_subset": snr_db(truth, estimate),
-            "load_average_1min_end": os.getloadavg()[0]}
+    run.update({"image": list(ltm.shape[:2]), "lattice": list(ltm.shape[2:]),
+                "stage_records": {k: record.get(k) for k in ("ingest", "resample",
+                                                             "reconstruct", "compact")},
+                "store_bytes": store_bytes(store), "variable_bytes": _variable_bytes(store),
+                "snr_y_db_pixel_subset": snr_db(truth, estimate)})
+    save()
+    run["relight_point_light"] = relight_cost(store, random_lights(PLANE.to_json(), 5))
+    run["load_average_1min_end"] = os.getloadavg()[0]
+    save()
 
 
 if __name__ == "__main__":
