@@ -43,7 +43,7 @@ from ltmstore.capture.video import VideoReader
 from ltmstore.core import store as st
 from ltmstore.core.dims import LUMA
 from ltmstore.core.store import open_store
-from ltmstore.core.transfer import encode, transfer_lut
+from ltmstore.core.transfer import encode, linearise, transfer_lut
 from ltmstore.judge.benchmark import random_lights, relight_cost
 from ltmstore.judge.evaluate import snr_db
 from ltmstore.stages.compact import store_bytes
@@ -129,7 +129,7 @@ def _luminance(video: Path) -> Iterator[np.ndarray]:
     lut = transfer_lut("srgb", bits=8)
     with VideoReader(video) as reader:
         for _, rgb in reader.frames():
-            yield lut[rgb] @ LUMA.astype(np.float32)
+            yield linearise(rgb, lut) @ LUMA.astype(np.float32)
 
 
 def _noisy(y: np.ndarray, rng: np.random.Generator) -> np.ndarray:

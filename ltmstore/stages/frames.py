@@ -238,9 +238,8 @@ class FrameSink:
             self.observed[1] += 1
         total, count = _accumulate(ycc, self._planes, self._sums, self._moments, valid)
         self.brightness.append(total / count if count else np.nan)
-        _to_half(self._planes[0], self._buffer[self._pending])
-        for plane, out in zip(self._planes[1:], self._chroma_buffer[:, self._pending],
-                              strict=True):
+        slots = (self._buffer[self._pending], *self._chroma_buffer[:, self._pending])
+        for plane, out in zip(self._planes, slots, strict=True):
             _to_half(plane, out)
         self._pending += 1
         self.n += 1
