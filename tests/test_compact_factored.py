@@ -182,3 +182,42 @@ def test_a_tile_is_factored_at_the_least_rank_within_its_budget(rank):
     assert left <= allowed
     np.testing.assert_allclose(w.reshape(1024, -1).T @ w.reshape(1024, -1), np.eye(least),
                                atol=1e-9)
+
+
+def test_packed_factors_keep_each_tile_at_its_own_rank(tmp_path):
+    """Tiles of ranks 1-6 on a 37 x 45 px image in tiles of 2 px (19 x 23 tiles: 2 x 2 blocks,
+    cut at the edges) are stored without padding, read back as their dense product in any
+    window, and relit ``W (B l)`` as the dense LTM's dot product with the lights."""
+    import zarr
+
+    from ltmstore.core import factored
+    from ltmstore.stages import factors
+
+    rng = np.random.default_rng(3)
+    image, tile, lattice = (37, 45), 2, (5, 4)
+    ranks = rng.integers(1, 7, size=(19, 23))
+    group = zarr.open_group(str(tmp_path / "f.zarr"), mode="w", zarr_format=3)
+    weights, basis, packing = factors.create(group, "ltm", ranks, image, lattice, (3, 2),
+                                             np.float32, tile)
+    dense = np.zeros((*image, *lattice), np.float32)
+    parts = {}
+    for (i, j), k in np.ndenumerate(ranks):
+        h, w = min(tile, image[0] - i * tile), min(tile, image[1] - j * tile)
+        parts[i, j] = (rng.standard_normal((h, w, k)).astype(np.float32),
+                       rng.standard_normal((k, *lattice)).astype(np.float32))
+        dense[i * tile:i * tile + h, j * tile:j * tile + w] = np.tensordot(*parts[i, j], axes=1)
+    assert len(packing.blocks()) == 4
+    for tiles in packing.blocks():
+        factors.write_block(weights, basis, packing, tiles, parts)
+    assert weights.shape == (sum(p[0].size for p in parts.values()),)  # no padding
+    assert basis.shape == (ranks.sum(), *lattice)
+    view = factored.derived(weights, basis, ranks, tile, (3, 2))
+    np.testing.assert_allclose(view.compute(), dense, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(view[5:33, 7:40, 1:4, 2:].compute(), dense[5:33, 7:40, 1:4, 2:],
+                               rtol=1e-5, atol=1e-5)
+    pattern = np.zeros((3, *lattice), np.float32)
+    pattern[0, 1:3, 2:4], pattern[1, 4, 0] = 0.25, 1.0  # a point light, a cell; no light
+    lit = factored.relight(weights, basis, ranks, pattern, tile).compute()
+    np.testing.assert_allclose(lit, np.einsum("yxrs,lrs->lyx", dense, pattern),
+                               rtol=1e-4, atol=1e-4)
+    assert not lit[2].any()

@@ -87,7 +87,7 @@ def test_a_tile_whose_factors_never_arrived_is_refused(tmp_path):
                            (slice(16 * ty, 16 * ty + 16), slice(16 * tx, 16 * tx + 16)),
                            (ty, tx), w, rng.standard_normal((3, 6, 5)))
     with pytest.raises(LtmError, match=r"missing in 2 tiles \(first tile 0, 2\)"):
-        factors.gather(group, "ltm", (16, 16), (6, 5), 3)
+        factors.gather(group, "ltm", (16, 16), (6, 5), np.full((2, 3), 3))
 
 
 def test_a_colour_capture_is_factored_in_every_channel(tmp_path, dask_cluster):

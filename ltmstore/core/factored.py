@@ -1,36 +1,46 @@
 """The factored stored form of an LTM: per pixel tile, a shared basis over the lattice cells
-and per-pixel weights (``ltm compact --form factored``).
+and per-pixel weights (``ltm compact --form factored``, ``ltm reconstruct --form factored``).
 
 Each tile of ``tile x tile`` pixels holds its LTFs as the rows of a matrix ``A`` (pixels by
 cells); its truncated SVD ``A ~ U_k (S_k V_k)`` keeps the smallest rank ``k`` whose left-out
 energy is within a budget: by default :func:`heldout_budget`, a fraction of the model's own
 held-out error in that tile (the rank the data supports, no more), or :func:`target_budget`,
 ``10**(-target/10)`` of the tile's energy (every tile keeps ``target`` dB against the dense
-LTM). Stored, for an LTM variable ``name``:
+LTM).
 
-* ``{name}_weights`` ``(y, x, rank)``: ``U_k`` of the pixel's tile, zero beyond its rank;
-* ``{name}_basis`` ``(factor_tile_y, factor_tile_x, rank, r, s)``: ``S_k V_k`` of each tile.
+Ranks differ from tile to tile (at the 4K bench: median 9, 99th percentile 102), so the
+factors are stored packed, each tile at its own rank, never padded to the largest (padding made
+one point light at 4K decompress 3.9 GB of weights where 0.47 GB are not zero). For an LTM
+variable ``name``:
 
-(``rank`` is ``rank_cb``, ``rank_cr`` for the colour LTM's ``ltm_cb``, ``ltm_cr``: each
-variable has its own largest rank.)
+* ``{name}_ranks`` ``(factor_tile_y, factor_tile_x)`` int32: each tile's rank ``k``;
+* ``{name}_weights`` ``(factor_weight,)``: each tile's ``U_k`` ``(h, w, k)`` in C order;
+* ``{name}_basis`` ``(factor_row, r, s)``: each tile's ``k`` rows of ``S_k V_k``;
+
+the tiles in the same order in both (:class:`Packing`: blocks of ``BLOCK_TILES`` x
+``BLOCK_TILES`` tiles, row by row, and the tiles of a block row by row), so one block's factors
+are one contiguous range of each. (``factor_weight_cb``, ``factor_row_cb`` ... for the colour
+LTM's ``ltm_cb``, ``ltm_cr``.)
 
 :func:`derived` presents ``T[y, x, r, s] = sum_k W[y, x, k] B[y // tile, x // tile, k, r, s]``
-lazily (Dask), chunked like the dense LTM or light-major (one cell per chunk): relighting one
-point light then computes ``W (B l)`` for its cells only, reading the weights and a small part
-of the basis.
+lazily (Dask), chunked by blocks and the dense LTM's lattice chunk, or light-major (one cell
+per chunk); :func:`relight` computes ``W (B l)`` block by block from the packed arrays, reading
+the weights once and the basis rows of the light's cells only.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-WEIGHTS, BASIS = "_weights", "_basis"
+WEIGHTS, BASIS, RANKS = "_weights", "_basis", "_ranks"
 TILE_WEIGHTS, TILE_BASIS = "_tile_weights", "_tile_basis"  # staged by ltm reconstruct
 TILE_DIMS = ("factor_tile_y", "factor_tile_x")
 DEFAULT_TILE = 32
 HELDOUT_FRACTION = 0.3  # the factors' error against the model's held-out error, at most
 MAX_DB = 60.0  # no tile is kept closer than this to its dense LTM (float16 rounds at ~70 dB)
-BLOCK_TILES = 16  # tiles per side of one stored chunk of weights (512 x 512 pixels)
+BLOCK_TILES = 16  # tiles per side of a block (512 x 512 pixels): one Dask task of a view
+WEIGHT_CHUNK = 1 << 20  # packed weights per stored chunk (4 MiB of float32)
+ROW_CHUNK = 4096  # basis rows per stored chunk (of one cell; a shard holds every cell)
 
 
 def weights_name(name: str) -> str:
@@ -43,9 +53,16 @@ def basis_name(name: str) -> str:
     return f"{name}{BASIS}"
 
 
-def rank_dim(name: str) -> str:
-    """The rank dimension of the factors of the LTM variable ``name``."""
-    return "rank" + name.removeprefix("ltm")
+def ranks_name(name: str) -> str:
+    """The per-tile ranks variable of the LTM variable ``name``."""
+    return f"{name}{RANKS}"
+
+
+def packed_dims(name: str) -> tuple[str, str]:
+    """The dimensions of the packed weights and of the basis rows of the LTM variable ``name``
+    (each variable has its own lengths)."""
+    suffix = name.removeprefix("ltm")
+    return f"factor_weight{suffix}", f"factor_row{suffix}"
 
 
 def factor_tile(values: np.ndarray, allowed: float) -> tuple[np.ndarray, np.ndarray]:
@@ -155,50 +172,218 @@ def heldout_budget(heldout_rms: np.ndarray, cells: int,
     return fraction ** 2 * float(np.sum(rms ** 2)) * cells
 
 
-def _product(weights: np.ndarray, basis: np.ndarray, tile: int) -> np.ndarray:
-    """One block of the derived LTM: ``weights (h, w, k)`` of whole tiles (the last ones may be
-    cut) and their ``basis (ty, tx, k, *cells)``."""
-    h, w, _ = weights.shape
-    ty, tx, _, *cells = basis.shape
-    out = np.empty((h, w, *cells), np.float32)
-    for i in range(ty):
-        for j in range(tx):
-            part = weights[i * tile:(i + 1) * tile, j * tile:(j + 1) * tile]
-            b = basis[i, j].reshape(basis.shape[2], -1)
-            out[i * tile:(i + 1) * tile, j * tile:(j + 1) * tile] = (
-                part.astype(np.float32) @ b.astype(np.float32)).reshape(*part.shape[:2], *cells)
-    return out
+def _sides(n: int, tile: int) -> np.ndarray:
+    """The pixels of each tile along an image side of ``n`` pixels (the last one may be cut)."""
+    return np.minimum(tile, n - np.arange(0, n, tile))
 
 
-def derived(weights, basis, tile: int, cells: tuple[int, int]):
+class Packing:
+    """Where each tile's factors lie in the packed weights and basis rows.
+
+    Parameters
+    ----------
+    ranks : ndarray
+        ``(tile_y, tile_x)`` each tile's rank.
+    image : (int, int)
+        The image's pixels ``(y, x)``.
+    tile : int
+        Pixels per tile side.
+    """
+
+    def __init__(self, ranks: np.ndarray, image: tuple[int, int], tile: int) -> None:
+        self.ranks = np.asarray(ranks, np.int64)
+        self.image, self.tile = (int(image[0]), int(image[1])), int(tile)
+        self.heights, self.widths = _sides(image[0], tile), _sides(image[1], tile)
+        if self.ranks.shape != (len(self.heights), len(self.widths)):
+            raise ValueError(f"ranks of shape {self.ranks.shape} do not tile an image of "
+                             f"{image} pixels in tiles of {tile}")
+        ty, tx = np.indices(self.ranks.shape)
+        order = np.lexsort((tx.ravel(), ty.ravel(), tx.ravel() // BLOCK_TILES,
+                            ty.ravel() // BLOCK_TILES))
+        sizes = (self.heights[:, None] * self.widths[None, :] * self.ranks).ravel()
+        self.sizes = sizes.reshape(self.ranks.shape)
+        self.weight_start = _starts(sizes, order).reshape(self.ranks.shape)
+        self.row_start = _starts(self.ranks.ravel(), order).reshape(self.ranks.shape)
+        self.n_weights, self.n_rows = int(sizes.sum()), int(self.ranks.sum())
+
+    def blocks(self) -> list[tuple[slice, slice]]:
+        """The tiles of each block, in packed order."""
+        ty, tx = self.ranks.shape
+        return [(slice(i, min(i + BLOCK_TILES, ty)), slice(j, min(j + BLOCK_TILES, tx)))
+                for i in range(0, ty, BLOCK_TILES) for j in range(0, tx, BLOCK_TILES)]
+
+    def span(self, tiles: tuple[slice, slice]) -> tuple[slice, slice]:
+        """The packed weights and basis rows of one block's ``tiles``."""
+        first = (tiles[0].start, tiles[1].start)
+        last = (tiles[0].stop - 1, tiles[1].stop - 1)
+        return (slice(int(self.weight_start[first]),
+                      int(self.weight_start[last] + self.sizes[last])),
+                slice(int(self.row_start[first]), int(self.row_start[last] + self.ranks[last])))
+
+    def pixels(self, tiles: tuple[slice, slice]) -> tuple[slice, slice]:
+        """The pixels ``(y, x)`` of a block's ``tiles``."""
+        t = self.tile
+        return (slice(tiles[0].start * t, min(tiles[0].stop * t, self.image[0])),
+                slice(tiles[1].start * t, min(tiles[1].stop * t, self.image[1])))
+
+    def tiles(self, tiles: tuple[slice, slice], weights: np.ndarray):
+        """Each tile of a block: ``(i, j, w, rows)`` its index in the block, its weights
+        ``(h, w, k)`` from the block's packed ``weights`` and its rows' slice in the block."""
+        w0, r0 = self.span(tiles)[0].start, self.span(tiles)[1].start
+        for i in range(tiles[0].start, tiles[0].stop):
+            for j in range(tiles[1].start, tiles[1].stop):
+                start, k = int(self.weight_start[i, j]) - w0, int(self.ranks[i, j])
+                part = weights[start:start + int(self.sizes[i, j])].reshape(
+                    self.heights[i], self.widths[j], k)
+                rows = slice(int(self.row_start[i, j]) - r0, int(self.row_start[i, j]) - r0 + k)
+                yield i - tiles[0].start, j - tiles[1].start, part, rows
+
+
+def _starts(sizes: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Each item's offset when items of ``sizes`` are laid out in ``order``."""
+    ordered = sizes[order]
+    starts = np.empty_like(sizes)
+    starts[order] = np.cumsum(ordered) - ordered
+    return starts
+
+
+def pack(packing: Packing, tiles: tuple[slice, slice],
+         parts: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]):
+    """One block's packed weights and basis rows, in packed order, from each tile's
+    ``(weights, basis)`` in ``parts`` (keyed by the tile's index in the image; tiles of other
+    blocks are left alone)."""
+    keys = [(i, j) for i in range(tiles[0].start, tiles[0].stop)
+            for j in range(tiles[1].start, tiles[1].stop)]
+    for i, j in keys:
+        if parts[i, j][0].shape != (packing.heights[i], packing.widths[j], packing.ranks[i, j]):
+            raise ValueError(f"tile {i}, {j}: weights of shape {parts[i, j][0].shape}, "
+                             f"expected rank {packing.ranks[i, j]}")
+    return (np.concatenate([parts[k][0].ravel() for k in keys]),
+            np.concatenate([parts[k][1] for k in keys]))
+
+
+class Packed:
+    """The LTM ``(y, x, r, s)`` of packed factors, or its images ``(y, x, lights)`` under the
+    lights of a ``pattern``, read block by block from the stored arrays (what :func:`derived`
+    and :func:`relight` wrap for Dask).
+
+    Parameters
+    ----------
+    weights, basis : zarr.Array
+        The packed factors.
+    packing : Packing
+        Where each tile lies in them.
+    pattern : ndarray, optional
+        ``(lights, r, s)`` the weight of each cell in each light: each block then reads the
+        basis rows of the cells with a weight only, and multiplies ``W (B l)``.
+    """
+
+    def __init__(self, weights, basis, packing: Packing, pattern: np.ndarray | None = None
+                 ) -> None:
+        self.weights, self.basis, self.packing = weights, basis, packing
+        self.pattern = None if pattern is None else np.asarray(pattern, np.float32)
+        tail = basis.shape[1:] if pattern is None else (len(pattern),)
+        self.shape = (*packing.image, *tail)
+        self.dtype, self.ndim = np.dtype(np.float32), len(self.shape)
+
+    def _columns(self, rows: slice, key: tuple[slice, ...]) -> np.ndarray:
+        """``(k, ...)`` each basis row of a block as the output's trailing axes at ``key``."""
+        if self.pattern is None:
+            return np.asarray(self.basis[rows, key[0], key[1]], np.float32)
+        used = np.argwhere((self.pattern != 0).any(axis=0))
+        if not len(used):
+            return np.zeros((rows.stop - rows.start, len(self.pattern)), np.float32)[:, key[0]]
+        box = tuple(slice(lo, hi + 1) for lo, hi in zip(used.min(0), used.max(0), strict=True))
+        basis = np.asarray(self.basis[(rows, *box)], np.float32)
+        weights = self.pattern[(slice(None), *box)]
+        return np.tensordot(basis, weights, axes=((1, 2), (1, 2)))[:, key[0]]
+
+    def __getitem__(self, key: tuple[slice, ...]) -> np.ndarray:
+        ys, xs = (range(*k.indices(n)) for k, n in zip(key[:2], self.shape, strict=False))
+        if ys.step != 1 or xs.step != 1:
+            raise IndexError(f"{key}: the factored LTM is read in steps of 1 along y, x")
+        tail = tuple(len(range(*k.indices(n))) for k, n in zip(key[2:], self.shape[2:],
+                                                                strict=True))
+        out = np.zeros((len(ys), len(xs), *tail), np.float32)
+        t = self.packing.tile
+        for tiles in self.packing.blocks():
+            by, bx = self.packing.pixels(tiles)
+            if not out.size or by.start >= ys.stop or by.stop <= ys.start \
+                    or bx.start >= xs.stop or bx.stop <= xs.start:
+                continue
+            wsl, rsl = self.packing.span(tiles)
+            weights = np.asarray(self.weights[wsl], np.float32)
+            columns = self._columns(rsl, key[2:])
+            for i, j, part, rows in self.packing.tiles(tiles, weights):
+                y0, x0 = by.start + i * t, bx.start + j * t
+                yy = slice(max(y0, ys.start), min(y0 + part.shape[0], ys.stop))
+                xx = slice(max(x0, xs.start), min(x0 + part.shape[1], xs.stop))
+                if yy.start < yy.stop and xx.start < xx.stop:
+                    out[yy.start - ys.start:yy.stop - ys.start,
+                        xx.start - xs.start:xx.stop - xs.start] = np.tensordot(
+                            part[yy.start - y0:yy.stop - y0, xx.start - x0:xx.stop - x0],
+                            columns[rows], axes=1)
+        return out
+
+
+def _lazy(packed: Packed, cells: tuple[int, ...]):
+    """``packed`` as a Dask array of one chunk per block by ``cells``."""
+    import dask.array as da
+
+    side = BLOCK_TILES * packed.packing.tile
+    return da.from_array(packed, chunks=(side, side, *cells), asarray=False, fancy=False,
+                         meta=np.empty((0,) * packed.ndim, np.float32))
+
+
+def derived(weights, basis, ranks: np.ndarray, tile: int, cells: tuple[int, int]):
     """The LTM ``(y, x, r, s)`` as a lazy product of its stored factors.
 
     Parameters
     ----------
     weights : zarr.Array
-        ``(y, x, rank)``.
+        ``(factor_weight,)`` packed.
     basis : zarr.Array
-        ``(tile_y, tile_x, rank, r, s)``.
+        ``(factor_row, r, s)`` packed; its attribute ``image`` holds the pixels ``(y, x)``.
+    ranks : ndarray
+        ``(tile_y, tile_x)``.
     tile : int
         Pixels per tile side.
     cells : (int, int)
         Lattice cells per chunk along ``r, s``: the dense LTM's inner chunk, or ``(1, 1)`` for
-        the light-major view that relighting reads.
+        the light-major view.
 
     Returns
     -------
     dask.array.Array
-        float32, chunks of the weights' pixel blocks by ``cells``.
+        float32, chunks of the blocks' pixels by ``cells``.
     """
-    import dask.array as da
+    packing = Packing(ranks, tuple(basis.attrs["image"]), tile)
+    return _lazy(Packed(weights, basis, packing), cells)
 
-    w = da.from_zarr(weights, chunks=weights.chunks)
-    # tiles per stored block of weights: from the stored chunk (whole tiles), not Dask's, which
-    # is cut to the image (400 px of 13 tiles of 32: one block of 13 tiles, not 400 // 32)
-    block = (weights.chunks[0] // tile, weights.chunks[1] // tile)
-    b = da.from_zarr(basis, chunks=(*block, basis.shape[2], *cells))
-    return da.blockwise(_product, "yxrs", w, "yxk", b, "yxkrs", dtype=np.float32,
-                        align_arrays=False, concatenate=True, tile=tile)
+
+def relight(weights, basis, ranks: np.ndarray, pattern: np.ndarray, tile: int):
+    """Images ``W (B l)`` of lights on a lattice, from the packed factors (never the dense LTM):
+    each block reads its weights once and the basis rows of the cells with a weight.
+
+    Parameters
+    ----------
+    weights, basis : zarr.Array
+        The packed factors (as :func:`derived`).
+    ranks : ndarray
+        ``(tile_y, tile_x)``.
+    pattern : ndarray
+        ``(lights, r, s)`` the weight of each cell in each light.
+    tile : int
+        Pixels per tile side.
+
+    Returns
+    -------
+    dask.array.Array
+        ``(lights, y, x)`` float32, one chunk per block.
+    """
+    packing = Packing(ranks, tuple(basis.attrs["image"]), tile)
+    packed = Packed(weights, basis, packing, pattern)
+    return _lazy(packed, (len(packed.pattern),)).transpose(2, 0, 1)
 
 
 class Eager:
@@ -216,64 +401,3 @@ class Eager:
 def stored_or_derived(group, ds, name: str):
     """``group[name]`` when stored densely, else the derived ``ds[name]`` as :class:`Eager`."""
     return group[name] if name in group else Eager(ds[name].data)
-
-
-def _expand_dot(weights: np.ndarray, lit: np.ndarray, tile: int) -> np.ndarray:
-    """One block of ``W (B l)``: ``weights (h, w, k)`` of whole tiles (the last ones may be
-    cut) and each tile's ``B l``, ``lit (lights, ty, tx, k)``. Each tile multiplies its own
-    rank only (its basis, hence ``lit``, is zero beyond it): at the Toys size's ranks (mean
-    24 of 56) 3x faster than the padded product."""
-    h, w, k = weights.shape
-    n, ty, tx, _ = lit.shape
-    nonzero = (lit != 0).any(axis=0)  # (ty, tx, k)
-    ranks = np.where(nonzero.any(axis=2), k - np.argmax(nonzero[:, :, ::-1], axis=2), 0)
-    out = np.zeros((n, h, w), np.float32)
-    for (i, j), rank in np.ndenumerate(ranks):
-        if rank:
-            where = (slice(i * tile, (i + 1) * tile), slice(j * tile, (j + 1) * tile))
-            part = weights[(*where, slice(0, rank))].astype(np.float32)
-            out[(slice(None), *where)] = np.moveaxis(
-                part @ lit[:, i, j, :rank].astype(np.float32).T, -1, 0)
-    return out
-
-
-def relight(weights, basis, pattern: np.ndarray, tile: int):
-    """Images ``W (B l)`` of lights on a lattice, from the factors (never the dense LTM).
-
-    Parameters
-    ----------
-    weights : dask.array.Array
-        ``(y, x, rank)``, chunked in blocks of whole tiles.
-    basis : dask.array.Array
-        ``(tile_y, tile_x, rank, r, s)`` (only the cells ``pattern`` covers).
-    pattern : ndarray
-        ``(lights, r, s)`` the weight of each cell in each light.
-    tile : int
-        Pixels per tile side.
-
-    Returns
-    -------
-    dask.array.Array
-        ``(lights, y, x)`` float32.
-    """
-    import dask.array as da
-
-    pattern = np.asarray(pattern, np.float32)
-    cells = np.argwhere((pattern != 0).any(axis=0))
-    if len(cells):  # read only the cells with a weight
-        parts = [basis[:, :, :, i, j].astype(np.float32) for i, j in cells]
-        lit = da.tensordot(pattern[:, cells[:, 0], cells[:, 1]], da.stack(parts), axes=1)
-    else:
-        lit = da.zeros((len(pattern), *basis.shape[:3]), np.float32,
-                       chunks=(len(pattern), *basis.chunks[:3]))
-    lit = lit.rechunk((-1, basis.chunks[0], basis.chunks[1], -1))  # blocks as the weights
-    # the rank in one chunk, passed as is: concatenating a single block along it would copy the
-    # block's padded weights (0.26 s of a 0.8 s point light at the Notre Dame-b size)
-    return da.blockwise(_expand_only_block, "lyx", weights.rechunk({2: -1}), "yxk", lit, "lyxk",
-                        dtype=np.float32, align_arrays=False, concatenate=False, tile=tile)
-
-
-def _expand_only_block(weights: list, lit: list, tile: int) -> np.ndarray:
-    """:func:`_expand_dot` of the one block along the rank (``concatenate=False`` lists it)."""
-    (weights,), (lit,) = weights, lit
-    return _expand_dot(weights, lit, tile)

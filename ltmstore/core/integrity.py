@@ -63,10 +63,13 @@ def _layout() -> dict[str, tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]]:
                                                 "ltm_cb_by_light", "ltm_cr_by_light")},
         **{k: ((pixels, (*pixels, "color")), (F32,)) for k in ("albedo", "specular", "ambient")},
         "expected_error": ((pixels,), (F32,)),
-        **{f"{k}_weights": (((*pixels, "rank" + k[3:]),), (F32, F16))
-           for k in ("ltm", "ltm_cb", "ltm_cr")},  # ltm compact --form factored
-        **{f"{k}_basis": ((("factor_tile_y", "factor_tile_x", "rank" + k[3:], *lat),), (F32, F16))
-           for k in ("ltm", "ltm_cb", "ltm_cr") for lat in LATTICES[:1]},
+        # the packed factors (ltmstore.core.factored) of either command's --form factored
+        **{f"{k}_weights": (((f"factor_weight{k[3:]}",),), (F32, F16))
+           for k in ("ltm", "ltm_cb", "ltm_cr")},
+        **{f"{k}_basis": (((f"factor_row{k[3:]}", *LATTICES[0]),), (F32, F16))
+           for k in ("ltm", "ltm_cb", "ltm_cr")},
+        **{f"{k}_ranks": ((("factor_tile_y", "factor_tile_x"),), ("int32",))
+           for k in ("ltm", "ltm_cb", "ltm_cr")},
         **{f"{k}_tile_weights": (((*pixels, "tile_rank"),), (F32,))
            for k in ("ltm", "ltm_cb", "ltm_cr")},  # staged by ltm reconstruct --form factored
         **{f"{k}_tile_basis": ((("tile_y", "tile_x", "tile_rank", *LATTICES[0]),), (F32,))
@@ -283,7 +286,7 @@ def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
         ltms = ["ltm", *(f"ltm_{c}" for c in colour)]
         compacted = done("compact").get("form") == "factored" and "ltm" not in metas
         if reconstruct.get("form") == "factored" or compacted:  # either command's factors
-            ltms = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis")]
+            ltms = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis", "_ranks")]
         if compacted:
             need.update({n: "compact" for n in ltms})
         need.update({n: "reconstruct" for n in [*ltms, *maps]

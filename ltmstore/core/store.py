@@ -50,8 +50,8 @@ STAGE_VARIABLES = {
                     # the factored form `ltm compact --form factored` leaves (core.factored)
                     # and its staging during `ltm reconstruct --form factored`
                     *(f"{n}{part}" for n in ("ltm", "ltm_cb", "ltm_cr")
-                      for part in (factored.WEIGHTS, factored.BASIS, factored.TILE_WEIGHTS,
-                                   factored.TILE_BASIS))),
+                      for part in (factored.WEIGHTS, factored.BASIS, factored.RANKS,
+                                   factored.TILE_WEIGHTS, factored.TILE_BASIS))),
 }
 # The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
@@ -416,6 +416,7 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
             ds[name].encoding = encoding
     ds = _derive_factored(ds, group)
     ds.attrs = dict(group.attrs.asdict())
+    ds.encoding["source"] = path  # where readers of the stored factors find them
     return ds
 
 
@@ -425,16 +426,18 @@ def _derive_factored(ds: xr.Dataset, group: zarr.Group) -> xr.Dataset:
     import xarray as xr
 
     for name in LTM_VARIABLES[:3]:
-        weights, basis = factored.weights_name(name), factored.basis_name(name)
-        if name in ds or weights not in ds or basis not in ds:
+        weights, basis, ranks = (f(name) for f in (factored.weights_name, factored.basis_name,
+                                                   factored.ranks_name))
+        if name in ds or any(n not in ds for n in (weights, basis, ranks)):
             continue
         tile = int(group[basis].attrs["tile"])
         coords = {k: ds[k] for k in ("y", "x", "r", "s") if k in ds.coords}
-        attrs = {k: v for k, v in ds[basis].attrs.items() if k not in ("factored_form_of",
-                                                                        "tile")}
-        cells = tuple(group[basis].chunks[3:])
+        attrs = {k: v for k, v in ds[basis].attrs.items()
+                 if k not in ("factored_form_of", "tile", "image", "lattice_chunk")}
+        cells = tuple(group[basis].attrs["lattice_chunk"])
+        values = np.asarray(group[ranks][...])
         for view, chunk in ((name, cells), (f"{name}_by_light", (1, 1))):
-            data = factored.derived(group[weights], group[basis], tile, chunk)
+            data = factored.derived(group[weights], group[basis], values, tile, chunk)
             ds[view] = xr.DataArray(data, dims=("y", "x", "r", "s"), coords=coords,
                                     attrs=attrs)
     return ds

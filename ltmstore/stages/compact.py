@@ -235,7 +235,7 @@ def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: floa
                                            progress)
         signal, noise = signal + s, noise + n
         stored["factor_bytes"] += sum(store_bytes(side / n) for n in (
-            factored.weights_name(name), factored.basis_name(name)))
+            factored.weights_name(name), factored.basis_name(name), factored.ranks_name(name)))
         for gone in (name, f"{name}_by_light"):
             if gone in target:
                 stored["dense_bytes"] += store_bytes(side / gone)
@@ -304,12 +304,14 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
         bar = tqdm(pool.map(factor, corners), total=len(corners), desc=f"factor {name}",
                    unit="tile", disable=not progress)
         parts = dict(zip(corners, bar, strict=True))
-    rank = max(p[0].shape[2] for p in parts.values())
-    weights, basis = factors.create(group, name, src.shape[:2], src.shape[2:], src.chunks[2:],
-                                    dtype, tile, rank, src.attrs.asdict())
-    for (y0, x0), (w, b, _, _) in parts.items():  # zero (the fill value) beyond its rank
-        weights[y0:y0 + w.shape[0], x0:x0 + w.shape[1], :w.shape[2]] = w
-        basis[y0 // tile, x0 // tile, :b.shape[0]] = b
+    ranks = np.zeros((-(-ny // tile), -(-nx // tile)), int)
+    for (y0, x0), (w, *_) in parts.items():
+        ranks[y0 // tile, x0 // tile] = w.shape[2]
+    weights, basis, packing = factors.create(group, name, ranks, (ny, nx), cells,
+                                             src.chunks[2:], dtype, tile, src.attrs.asdict())
+    by_tile = {(y0 // tile, x0 // tile): part[:2] for (y0, x0), part in parts.items()}
+    for tiles in packing.blocks():
+        factors.write_block(weights, basis, packing, tiles, by_tile)
     used = [p[0].shape[2] for p in parts.values()]
     return (sum(p[2] for p in parts.values()), sum(p[3] for p in parts.values()),
-            {"min": min(used), "mean": float(np.mean(used)), "max": rank})
+            {"min": min(used), "mean": float(np.mean(used)), "max": max(used)})

@@ -4,9 +4,9 @@
 Each tile's solver factors its LTFs (:func:`ltmstore.core.factored.factor_tile`) and writes
 them into staging variables of one chunk row per tile, padded to the tile's full rank
 (``{name}_tile_weights``, ``{name}_tile_basis``; only the rank chunks it uses are written).
-Once every tile is solved, :func:`gather` copies them at the largest rank used into the layout
-``ltm compact --form factored`` writes (:func:`create`), checks that every tile is there, and
-removes the staging variables.
+Once every tile is solved, :func:`gather` packs them, each tile at its own rank, into the
+layout ``ltm compact --form factored`` writes (:func:`create`, :func:`write_block`), checks that
+every tile is there, and removes the staging variables.
 """
 
 from __future__ import annotations
@@ -29,27 +29,43 @@ def staging_names(name: str) -> tuple[str, str]:
     return f"{name}{factored.TILE_WEIGHTS}", f"{name}{factored.TILE_BASIS}"
 
 
-def create(group: zarr.Group, name: str, image: tuple[int, int], lattice: tuple[int, int],
-           lattice_chunk: tuple[int, int], dtype, tile: int, rank: int,
-           attrs: dict | None = None) -> tuple[zarr.Array, zarr.Array]:
-    """Create ``{name}_weights`` and ``{name}_basis`` (blocks of whole tiles; the basis in
-    chunks of the dense LTM's lattice chunk, sharded by block)."""
-    ny, nx = image
-    ty, tx = -(-ny // tile), -(-nx // tile)
-    block = (min(factored.BLOCK_TILES, ty), min(factored.BLOCK_TILES, tx))
-    rank_dim = factored.rank_dim(name)
-    attrs = {**(attrs or {}), "factored_form_of": name, "tile": tile}
+def create(group: zarr.Group, name: str, ranks: np.ndarray, image: tuple[int, int],
+           lattice: tuple[int, int], lattice_chunk: tuple[int, int], dtype, tile: int,
+           attrs: dict | None = None) -> tuple[zarr.Array, zarr.Array, factored.Packing]:
+    """Create the packed factors of ``name`` (:mod:`ltmstore.core.factored`) for tiles of
+    ``ranks``, and write the ranks: the weights in chunks of ``WEIGHT_CHUNK``, the basis in
+    chunks of ``ROW_CHUNK`` rows of one cell (a point light reads its few cells), sharded by
+    rows (one file holds every cell)."""
+    packing = factored.Packing(ranks, image, tile)
+    weight_dim, row_dim = factored.packed_dims(name)
+    attrs = {**(attrs or {}), "factored_form_of": name, "tile": tile,
+             "image": [int(n) for n in image], "lattice_chunk": [int(c) for c in lattice_chunk]}
+    stored = st.create_variable(group, factored.ranks_name(name), factored.TILE_DIMS,
+                                packing.ranks.shape, chunks=packing.ranks.shape,
+                                dtype=np.int32, fill_value=0)
+    stored[:] = packing.ranks.astype(np.int32)
+    rows = min(factored.ROW_CHUNK, packing.n_rows)
     weights = st.create_variable(
-        group, factored.weights_name(name), ("y", "x", rank_dim), (ny, nx, rank),
-        chunks=(block[0] * tile, block[1] * tile, rank), dtype=dtype, fill_value=0,
+        group, factored.weights_name(name), (weight_dim,), (packing.n_weights,),
+        chunks=(min(factored.WEIGHT_CHUNK, packing.n_weights),), dtype=dtype, fill_value=0,
         compressors=checksum.FAST_COMPRESSORS, attrs=attrs)
     basis = st.create_variable(
-        group, factored.basis_name(name), (*factored.TILE_DIMS, rank_dim, "r", "s"),
-        (ty, tx, rank, *lattice), chunks=(*block, rank, *lattice_chunk),
-        shards=(*block, rank, *(-(-n // c) * c for n, c in zip(lattice, lattice_chunk,
-                                                               strict=True))),
-        dtype=dtype, fill_value=0, compressors=checksum.FAST_COMPRESSORS, attrs=attrs)
-    return weights, basis
+        group, factored.basis_name(name), (row_dim, "r", "s"), (packing.n_rows, *lattice),
+        chunks=(rows, 1, 1), shards=(rows, *lattice), dtype=dtype, fill_value=0,
+        compressors=checksum.FAST_COMPRESSORS, attrs=attrs)
+    return weights, basis, packing
+
+
+def write_block(weights: zarr.Array, basis: zarr.Array, packing: factored.Packing,
+                tiles: tuple[slice, slice],
+                parts: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]) -> None:
+    """Write the factors of one block's ``tiles`` (``parts[i, j] = (weights (h, w, k), basis
+    (k, r, s))`` of tile ``i, j``; tiles of other blocks are left alone) into their packed
+    ranges."""
+    packed_w, packed_b = factored.pack(packing, tiles, parts)
+    where_w, where_b = packing.span(tiles)
+    weights[where_w] = packed_w.astype(weights.dtype)
+    basis[where_b] = packed_b.astype(basis.dtype)
 
 
 def create_staging(group: zarr.Group, name: str, image: tuple[int, int],
@@ -78,9 +94,10 @@ def write_tile(staging: tuple[zarr.Array, zarr.Array], where: tuple[slice, slice
 
 
 def gather(group: zarr.Group, name: str, tile: tuple[int, int],
-           lattice_chunk: tuple[int, int], rank: int) -> None:
-    """Copy the staging factors of ``name`` at ``rank`` into the stored layout (:func:`create`)
-    block by block, refusing a tile that never wrote its factors; remove the staging.
+           lattice_chunk: tuple[int, int], ranks: np.ndarray) -> None:
+    """Pack the staging factors of ``name``, each tile at its rank in ``ranks``, into the
+    stored layout (:func:`create`) block by block, refusing a tile that never wrote its
+    factors; remove the staging.
 
     Raises
     ------
@@ -91,17 +108,22 @@ def gather(group: zarr.Group, name: str, tile: tuple[int, int],
     stage_w, stage_b = (group[n] for n in staging_names(name))
     ny, nx, _ = stage_w.shape
     side = tile[0]
-    weights, basis = create(group, name, (ny, nx), stage_b.shape[3:], lattice_chunk,
-                            np.float32, side, rank)
-    by, bx = (c // side for c in weights.chunks[:2])
-    for ty0 in range(0, stage_b.shape[0], by):
-        for tx0 in range(0, stage_b.shape[1], bx):
-            rows = slice(ty0 * side, min((ty0 + by) * side, ny))
-            cols = slice(tx0 * side, min((tx0 + bx) * side, nx))
-            w = stage_w[rows, cols, :rank]
-            _check_every_tile(w, side, (ty0, tx0), name, group)
-            weights[rows, cols] = w
-            basis[ty0:ty0 + by, tx0:tx0 + bx] = stage_b[ty0:ty0 + by, tx0:tx0 + bx, :rank]
+    weights, basis, packing = create(group, name, ranks, (ny, nx), stage_b.shape[3:],
+                                     lattice_chunk, np.float32, side)
+    for tiles in packing.blocks():
+        rows, cols = packing.pixels(tiles)
+        top = int(packing.ranks[tiles].max())
+        w = stage_w[rows, cols, :top]
+        _check_every_tile(w, side, (tiles[0].start, tiles[1].start), name, group)
+        b = stage_b[tiles[0], tiles[1], :top]
+        parts = {}
+        for i in range(tiles[0].start, tiles[0].stop):
+            for j in range(tiles[1].start, tiles[1].stop):
+                k, y0, x0 = int(packing.ranks[i, j]), (i - tiles[0].start) * side, \
+                    (j - tiles[1].start) * side
+                parts[i, j] = (w[y0:y0 + side, x0:x0 + side, :k],
+                               b[i - tiles[0].start, j - tiles[1].start, :k])
+        write_block(weights, basis, packing, tiles, parts)
     for staged in staging_names(name):
         del group[staged]
 

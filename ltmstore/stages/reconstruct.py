@@ -712,7 +712,7 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     for name in names:
         if form == "factored":  # refuses a tile whose factors are missing
             ranks = _tile_values(all_records[name], plan, "rank").astype(int)
-            factors.gather(group, name, plan.tile, plan.lattice_chunk, int(ranks.max()))
+            factors.gather(group, name, plan.tile, plan.lattice_chunk, ranks)
             info.setdefault("ranks", {})[name] = {
                 "min": int(ranks.min()), "mean": float(ranks.mean()), "max": int(ranks.max())}
         else:

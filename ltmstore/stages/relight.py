@@ -62,7 +62,7 @@ from ltmstore.core.lights import (
     normalise,
     plane_to_direction,
 )
-from ltmstore.core.store import open_store
+from ltmstore.core.store import open_group, open_store
 from ltmstore.core.transfer import (
     CAPTURE,
     check_exposure,
@@ -390,15 +390,23 @@ def _relight_pattern(ds: xr.Dataset, lights: xr.DataArray, view, color: bool) ->
 
 def _factored(ds: xr.Dataset, name: str) -> bool:
     """Whether the LTM variable ``name`` is stored as factors (:mod:`ltmstore.core.factored`)."""
-    return factored.weights_name(name) in ds and factored.basis_name(name) in ds
+    return all(f(name) in ds for f in (factored.weights_name, factored.basis_name,
+                                       factored.ranks_name))
 
 
 def _factored_dot(ds: xr.Dataset, name: str, ltm: xr.DataArray, pattern: xr.DataArray,
                   box: dict[str, slice]) -> xr.DataArray:
-    """``W (B l)`` from the stored factors of ``name``: never the dense LTM."""
-    basis = ds[factored.basis_name(name)]
-    image = factored.relight(ds[factored.weights_name(name)].data, basis.isel(box).data,
-                             pattern.transpose(LIGHT, "r", "s").values, int(basis.attrs["tile"]))
+    """``W (B l)`` from the stored factors of ``name``: never the dense LTM. (A dataset that
+    does not name its store, ``encoding["source"]``, relights from its derived LTM.)"""
+    if "source" not in ds.encoding:
+        return xr.dot(ltm, pattern, dim=["r", "s"])
+    group = open_group(ds.encoding["source"])
+    basis = group[factored.basis_name(name)]
+    full = np.zeros((pattern.sizes[LIGHT], *basis.shape[1:]), np.float32)
+    full[(slice(None), box["r"], box["s"])] = pattern.transpose(LIGHT, "r", "s").values
+    image = factored.relight(group[factored.weights_name(name)], basis,
+                             np.asarray(group[factored.ranks_name(name)][...]), full,
+                             int(basis.attrs["tile"]))
     coords = {k: c for k, c in ltm.coords.items() if set(c.dims) <= {"y", "x"}}
     return xr.DataArray(image, dims=(LIGHT, "y", "x"), coords=coords)
 
