@@ -49,7 +49,8 @@ def main() -> None:
         "compact_s": seconds, "printed": printed.stdout.strip(),
         "snr_truth_db": snr_db(truth, factored), "snr_vs_dense_db": snr_db(dense, factored),
         "relight": relight_cost(dst, lights), "store_bytes": store_bytes(dst),
-        "factor_bytes": sum(store_bytes(dst / n) for n in ("ltm_weights", "ltm_basis"))}
+        "factor_bytes": sum(store_bytes(dst / n)
+                            for n in ("ltm_weights", "ltm_basis", "ltm_ranks"))}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "compact_toys_factored.json").write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))

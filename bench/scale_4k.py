@@ -10,7 +10,9 @@ plane then gives at least 1,300 frames at 30 fps). Each frame's linear luminance
 4K sensor's pixels are noisy one by one), then written grey (a monochrome painting: its
 colour is illumination invariant, so the store keeps no per-frame chroma) as a phone writes it
 (:func:`ltmstore.synthetic.writer.write_h264`, H.264 High at 50 Mbit/s, x264's ``veryfast``
-preset). The same at the rendered size makes the reference capture.
+preset; ``--bitrate`` sets another rate for both). The same at the rendered size makes the
+reference capture. ``--target`` scales to another size: ``--target 1152x1152 --bitrate 8`` gives
+each pixel the bits of 50 Mbit/s at 4K, and a high ``--bitrate`` nearly none of its loss.
 
 The product's own commands then run on both, as a user runs them: ``ltm ingest
 --exposure-locked`` (the simulator's camera is locked), ``ltm reconstruct`` (every default:
@@ -60,7 +62,7 @@ from ltmstore.synthetic.writer import write_h264
 sys.path.insert(0, str(Path(__file__).parent))
 from scale_bench import SNR_STEP, PeakMemory  # noqa: E402
 
-BITRATE = 50_000_000  # bit/s: a phone's 4K H.264
+BITRATE = 50.0  # Mbit/s: a phone's 4K H.264
 
 
 def main() -> None:
@@ -70,24 +72,30 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=384, help="rendered side (pixels)")
     parser.add_argument("--speed", type=float, default=0.095, help="hand speed (m/s)")
     parser.add_argument("--target", default="2160x3840", help="the video's ROWSxCOLUMNS")
+    parser.add_argument("--bitrate", type=float, default=BITRATE,
+                        help="H.264 bit rate of both captures (Mbit/s)")
     parser.add_argument("--reuse", action="store_true",
                         help="keep the captures in --work and reuse them when there")
+    parser.add_argument("--form", choices=("auto", "dense", "factored"), default="auto",
+                        help="ltm reconstruct --form (default: its own default)")
     parser.add_argument("--only", choices=("reference", "4k"),
                         help="run one capture's commands only")
     args = parser.parse_args()
     work = Path(args.work)
     plan_args = dict(scene="canvas", seed=0, size=args.size, speed=args.speed, plane=PLANE)
     target = tuple(int(n) for n in args.target.split("x"))
-    made = _captures(work, plan_args, target, reuse=args.reuse)
-    result = {"command": "python bench/scale_4k.py", "machine": _machine(),
-              "render_size": args.size, "speed_m_s": args.speed, "captures": made,
+    made = _captures(work, plan_args, target, args.bitrate, reuse=args.reuse)
+    result = {"command": "python bench/" + " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+              "machine": _machine(),
+              "render_size": args.size, "speed_m_s": args.speed, "bitrate_mbit_s": args.bitrate,
+              "captures": made,
               "runs": {}}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for name in ("reference", "4k"):
         if args.only in (None, name):
             run = result["runs"][name] = {}
-            _run(work / name, plan_args, made["exposure"], run,
+            _run(work / name, plan_args, made["exposure"], run, args.form,
                  save=lambda: (out / "scale_4k.json").write_text(json.dumps(result, indent=2)
                                                                  + "\n"))
     print(json.dumps(result, indent=2))
@@ -99,12 +107,15 @@ def _machine() -> dict:
             "load_average_1min_start": os.getloadavg()[0]}
 
 
-def _captures(work: Path, plan_args: dict, target: tuple[int, int], *, reuse: bool) -> dict:
+def _captures(work: Path, plan_args: dict, target: tuple[int, int], bitrate: float, *,
+              reuse: bool) -> dict:
     """The rendered capture, and from it the grey reference and 4K captures (kept in ``work``
     with ``reuse``)."""
     facts = work / "captures.json"
     if reuse and facts.exists():
-        return json.loads(facts.read_text())
+        made = json.loads(facts.read_text())
+        if made.get("bitrate_mbit_s", BITRATE) == bitrate:
+            return made
     shutil.rmtree(work, ignore_errors=True)
     start = time.perf_counter()
     sim = simulate_acquisition(work / "rendered", truth=False, progress=True, **plan_args)
@@ -116,8 +127,8 @@ def _captures(work: Path, plan_args: dict, target: tuple[int, int], *, reuse: bo
         acq = _folder(work / "rendered", work / name / "acq")
         noise = np.random.default_rng(seed)
         frames = (_noisy(scale(y), noise) for y in _luminance(work / "rendered" / "video.mkv"))
-        write_h264(acq / "video.mp4", frames, bitrate=BITRATE, preset="veryfast")
-    made = {"frames": sim["frames"], "exposure": sim["exposure"],
+        write_h264(acq / "video.mp4", frames, bitrate=int(bitrate * 1e6), preset="veryfast")
+    made = {"frames": sim["frames"], "exposure": sim["exposure"], "bitrate_mbit_s": bitrate,
             "render_s": round(rendered, 1), "encode_s": round(time.perf_counter() - start, 1),
             "video_bytes": {n: (work / n / "acq" / "video.mp4").stat().st_size for n in scaled}}
     facts.write_text(json.dumps(made, indent=2))
@@ -167,14 +178,15 @@ def _variable_bytes(store: Path) -> dict[str, int]:
     return {v.name: store_bytes(v) for v in sorted(store.iterdir()) if v.is_dir()}
 
 
-def _run(folder: Path, plan_args: dict, exposure: float, run: dict, save) -> None:
+def _run(folder: Path, plan_args: dict, exposure: float, run: dict, form: str,
+         save) -> None:
     """The three commands on ``folder``'s capture, then the measures of their store, into
     ``run`` (``save()`` after each step, so that a failure keeps what was measured)."""
     store = folder / "store.zarr"
     shutil.rmtree(store, ignore_errors=True)
     for step, args in (("ingest", ["ingest", str(folder / "acq"), str(store),
                                    "--exposure-locked"]),
-                       ("reconstruct", ["reconstruct", str(store)]),
+                       ("reconstruct", ["reconstruct", str(store), "--form", form]),
                        ("compact", ["compact", str(store)])):
         if step == "compact":
             run["before_compact"] = {"store_bytes": store_bytes(store),

@@ -155,7 +155,8 @@ def main() -> None:
         shutil.rmtree(work, ignore_errors=True)
 
 
-LTM_STORED = ("ltm", "ltm_by_light", "ltm_weights", "ltm_basis")  # either form's LTM bytes
+# either form's LTM bytes
+LTM_STORED = ("ltm", "ltm_by_light", "ltm_weights", "ltm_basis", "ltm_ranks")
 SIM_JSON = "simulate.json"  # what the simulation returned, kept beside a reusable scene
 
 

@@ -111,6 +111,22 @@ def test_a_damaged_factor_chunk_is_refused_by_check_and_relight(factored_store, 
     assert not out.exists()
 
 
+def test_the_padded_factored_form_of_earlier_versions_is_named_not_read(factored_store,
+                                                                     tmp_path):
+    """A store whose weights are ``(y, x, rank)`` (before 2026-11-28) is refused, saying so."""
+    import json
+
+    store = shutil.copytree(factored_store[0], tmp_path / "store.zarr")
+    meta_path = store / "ltm_weights" / "zarr.json"
+    meta = json.loads(meta_path.read_text())
+    meta["dimension_names"], meta["shape"] = ["y", "x", "rank"], [32, 32, 16]
+    meta["chunk_grid"]["configuration"]["chunk_shape"] = [32, 32, 16]
+    meta_path.write_text(json.dumps(meta))
+    proc = run_ltm("relight", store, "--light", "0,0", "-o", tmp_path / "relit.png")
+    assert proc.returncode == 2 and "padded factored form written before" in proc.stderr
+    assert not (tmp_path / "relit.png").exists()
+
+
 def test_cli_compact_factored_reports_its_cost_and_refuses_twice(small_store, tmp_path):
     store = shutil.copytree(small_store, tmp_path / "store.zarr", copy_function=os.link)
     bad = run_ltm("compact", store, "--form", "factored", "--target-snr", "0")
@@ -184,21 +200,25 @@ def test_a_tile_is_factored_at_the_least_rank_within_its_budget(rank):
                                atol=1e-9)
 
 
-def test_packed_factors_keep_each_tile_at_its_own_rank(tmp_path):
+def test_packed_factors_keep_each_tile_at_its_own_rank(tmp_path, monkeypatch):
     """Tiles of ranks 1-6 on a 37 x 45 px image in tiles of 2 px (19 x 23 tiles: 2 x 2 blocks,
-    cut at the edges) are stored without padding, read back as their dense product in any
-    window, and relit ``W (B l)`` as the dense LTM's dot product with the lights."""
+    cut at the edges) are stored without padding, in chunks that blocks end inside, read back
+    as their dense product in any window, and relit ``W (B l)`` as the dense LTM's dot product
+    with the lights."""
     import zarr
 
     from ltmstore.core import factored
     from ltmstore.stages import factors
 
+    monkeypatch.setattr(factored, "WEIGHT_CHUNK", 100)  # about 6 tiles, so that blocks end
+    monkeypatch.setattr(factored, "ROW_CHUNK", 7)  # inside chunks (2500 rows, 14 KB of weights)
     rng = np.random.default_rng(3)
     image, tile, lattice = (37, 45), 2, (5, 4)
     ranks = rng.integers(1, 7, size=(19, 23))
     group = zarr.open_group(str(tmp_path / "f.zarr"), mode="w", zarr_format=3)
     weights, basis, packing = factors.create(group, "ltm", ranks, image, lattice, (3, 2),
                                              np.float32, tile)
+    writer = factors.PackedWriter(weights, basis, packing)
     dense = np.zeros((*image, *lattice), np.float32)
     parts = {}
     for (i, j), k in np.ndenumerate(ranks):
@@ -207,10 +227,13 @@ def test_packed_factors_keep_each_tile_at_its_own_rank(tmp_path):
                        rng.standard_normal((k, *lattice)).astype(np.float32))
         dense[i * tile:i * tile + h, j * tile:j * tile + w] = np.tensordot(*parts[i, j], axes=1)
     assert len(packing.blocks()) == 4
+    with pytest.raises(ValueError, match="packed order"):
+        writer.write(packing.blocks()[1], parts)
     for tiles in packing.blocks():
-        factors.write_block(weights, basis, packing, tiles, parts)
+        writer.write(tiles, parts)
+    writer.close()
     assert weights.shape == (sum(p[0].size for p in parts.values()),)  # no padding
-    assert basis.shape == (ranks.sum(), *lattice)
+    assert basis.shape == (ranks.sum(), *lattice) and basis.shards[0] == 7
     view = factored.derived(weights, basis, ranks, tile, (3, 2))
     np.testing.assert_allclose(view.compute(), dense, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(view[5:33, 7:40, 1:4, 2:].compute(), dense[5:33, 7:40, 1:4, 2:],

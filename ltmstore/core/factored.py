@@ -229,7 +229,7 @@ class Packing:
     def tiles(self, tiles: tuple[slice, slice], weights: np.ndarray):
         """Each tile of a block: ``(i, j, w, rows)`` its index in the block, its weights
         ``(h, w, k)`` from the block's packed ``weights`` and its rows' slice in the block."""
-        w0, r0 = self.span(tiles)[0].start, self.span(tiles)[1].start
+        w0, r0 = (part.start for part in self.span(tiles))
         for i in range(tiles[0].start, tiles[0].stop):
             for j in range(tiles[1].start, tiles[1].stop):
                 start, k = int(self.weight_start[i, j]) - w0, int(self.ranks[i, j])
@@ -285,21 +285,23 @@ class Packed:
         tail = basis.shape[1:] if pattern is None else (len(pattern),)
         self.shape = (*packing.image, *tail)
         self.dtype, self.ndim = np.dtype(np.float32), len(self.shape)
+        if self.pattern is not None:  # the box of cells with a weight, or none
+            used = np.argwhere((self.pattern != 0).any(axis=0))
+            self.box = tuple(slice(lo, hi + 1) for lo, hi in
+                             zip(used.min(0), used.max(0), strict=True)) if len(used) else None
 
     def _columns(self, rows: slice, key: tuple[slice, ...]) -> np.ndarray:
         """``(k, ...)`` each basis row of a block as the output's trailing axes at ``key``."""
         if self.pattern is None:
             return np.asarray(self.basis[rows, key[0], key[1]], np.float32)
-        used = np.argwhere((self.pattern != 0).any(axis=0))
-        if not len(used):
+        if self.box is None:
             return np.zeros((rows.stop - rows.start, len(self.pattern)), np.float32)[:, key[0]]
-        box = tuple(slice(lo, hi + 1) for lo, hi in zip(used.min(0), used.max(0), strict=True))
-        basis = np.asarray(self.basis[(rows, *box)], np.float32)
-        weights = self.pattern[(slice(None), *box)]
+        basis = np.asarray(self.basis[(rows, *self.box)], np.float32)
+        weights = self.pattern[(slice(None), *self.box)]
         return np.tensordot(basis, weights, axes=((1, 2), (1, 2)))[:, key[0]]
 
     def __getitem__(self, key: tuple[slice, ...]) -> np.ndarray:
-        ys, xs = (range(*k.indices(n)) for k, n in zip(key[:2], self.shape, strict=False))
+        ys, xs = (range(*k.indices(n)) for k, n in zip(key[:2], self.shape[:2], strict=True))
         if ys.step != 1 or xs.step != 1:
             raise IndexError(f"{key}: the factored LTM is read in steps of 1 along y, x")
         tail = tuple(len(range(*k.indices(n))) for k, n in zip(key[2:], self.shape[2:],

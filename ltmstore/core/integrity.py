@@ -192,7 +192,10 @@ def layout_damage(meta: Meta, checksummed: bool) -> list[str]:
     if meta.name in LAYOUT:
         dims, dtypes = LAYOUT[meta.name]
         if meta.dims not in dims:
-            found.append(f"{where}: dims {meta.dims}, expected {' or '.join(map(str, dims))}")
+            padded = meta.name.endswith("_weights") and meta.dims[:2] == ("y", "x")
+            found.append(f"{where}: dims {meta.dims}, expected {' or '.join(map(str, dims))}"
+                         + (" (the padded factored form written before 2026-11-28, which this "
+                            "version does not read)" if padded else ""))
         if meta.dtype not in dtypes:
             found.append(f"{where}: data type {meta.dtype}, expected {' or '.join(dtypes)}")
     if len(meta.dims) != len(meta.shape) or len(meta.part) != len(meta.shape):

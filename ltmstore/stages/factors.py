@@ -5,7 +5,7 @@ Each tile's solver factors its LTFs (:func:`ltmstore.core.factored.factor_tile`)
 them into staging variables of one chunk row per tile, padded to the tile's full rank
 (``{name}_tile_weights``, ``{name}_tile_basis``; only the rank chunks it uses are written).
 Once every tile is solved, :func:`gather` packs them, each tile at its own rank, into the
-layout ``ltm compact --form factored`` writes (:func:`create`, :func:`write_block`), checks that
+layout ``ltm compact --form factored`` writes (:func:`create`, :class:`PackedWriter`), checks that
 every tile is there, and removes the staging variables.
 """
 
@@ -56,16 +56,45 @@ def create(group: zarr.Group, name: str, ranks: np.ndarray, image: tuple[int, in
     return weights, basis, packing
 
 
-def write_block(weights: zarr.Array, basis: zarr.Array, packing: factored.Packing,
-                tiles: tuple[slice, slice],
-                parts: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]) -> None:
-    """Write the factors of one block's ``tiles`` (``parts[i, j] = (weights (h, w, k), basis
-    (k, r, s))`` of tile ``i, j``; tiles of other blocks are left alone) into their packed
-    ranges."""
-    packed_w, packed_b = factored.pack(packing, tiles, parts)
-    where_w, where_b = packing.span(tiles)
-    weights[where_w] = packed_w.astype(weights.dtype)
-    basis[where_b] = packed_b.astype(basis.dtype)
+class PackedWriter:
+    """Writes the packed factors block after block, in packed order, in whole stored chunks
+    (shards): a block's range ends inside a chunk, whose rest the next block writes, and a
+    chunk written twice would be read back, decoded and encoded again each time."""
+
+    def __init__(self, weights: zarr.Array, basis: zarr.Array, packing: factored.Packing
+                 ) -> None:
+        self.packing = packing
+        self.arrays = (weights, basis)
+        self.pending: tuple[list, list] = ([], [])
+        self.start = [0, 0]
+
+    def write(self, tiles: tuple[slice, slice],
+              parts: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]) -> None:
+        """Add the factors of one block's ``tiles`` (``parts[i, j] = (weights (h, w, k), basis
+        (k, r, s))`` of tile ``i, j``; tiles of other blocks are left alone), the block after
+        the last one written."""
+        span = self.packing.span(tiles)
+        for n, values in enumerate(factored.pack(self.packing, tiles, parts)):
+            if span[n].start != self.start[n] + sum(len(v) for v in self.pending[n]):
+                raise ValueError(f"tiles {tiles}: blocks are written in packed order")
+            self.pending[n].append(values)
+        self._flush(whole=True)
+
+    def close(self) -> None:
+        """Write what is left (the last, partial chunk)."""
+        self._flush(whole=False)
+
+    def _flush(self, whole: bool) -> None:
+        for n, array in enumerate(self.arrays):
+            if not self.pending[n]:
+                continue
+            values = np.concatenate(self.pending[n])
+            step = (array.shards or array.chunks)[0]
+            stop = len(values) // step * step if whole else len(values)
+            if stop:
+                array[self.start[n]:self.start[n] + stop] = values[:stop].astype(array.dtype)
+            self.pending[n][:] = [values[stop:]] if stop < len(values) else []
+            self.start[n] += stop
 
 
 def create_staging(group: zarr.Group, name: str, image: tuple[int, int],
@@ -108,8 +137,9 @@ def gather(group: zarr.Group, name: str, tile: tuple[int, int],
     stage_w, stage_b = (group[n] for n in staging_names(name))
     ny, nx, _ = stage_w.shape
     side = tile[0]
-    weights, basis, packing = create(group, name, ranks, (ny, nx), stage_b.shape[3:],
-                                     lattice_chunk, np.float32, side)
+    writer = PackedWriter(*create(group, name, ranks, (ny, nx), stage_b.shape[3:],
+                                  lattice_chunk, np.float32, side))
+    packing = writer.packing
     for tiles in packing.blocks():
         rows, cols = packing.pixels(tiles)
         top = int(packing.ranks[tiles].max())
@@ -123,7 +153,8 @@ def gather(group: zarr.Group, name: str, tile: tuple[int, int],
                     (j - tiles[1].start) * side
                 parts[i, j] = (w[y0:y0 + side, x0:x0 + side, :k],
                                b[i - tiles[0].start, j - tiles[1].start, :k])
-        write_block(weights, basis, packing, tiles, parts)
+        writer.write(tiles, parts)
+    writer.close()
     for staged in staging_names(name):
         del group[staged]
 

@@ -397,11 +397,12 @@ def _factored(ds: xr.Dataset, name: str) -> bool:
 def _factored_dot(ds: xr.Dataset, name: str, ltm: xr.DataArray, pattern: xr.DataArray,
                   box: dict[str, slice]) -> xr.DataArray:
     """``W (B l)`` from the stored factors of ``name``: never the dense LTM. (A dataset that
-    does not name its store, ``encoding["source"]``, relights from its derived LTM.)"""
-    if "source" not in ds.encoding:
+    does not name its store in ``encoding["source"]``, or holds part of its image, relights
+    from its derived LTM.)"""
+    group = open_group(ds.encoding["source"]) if "source" in ds.encoding else None
+    basis = None if group is None else group[factored.basis_name(name)]
+    if basis is None or list(ltm.shape[:2]) != list(basis.attrs["image"]):
         return xr.dot(ltm, pattern, dim=["r", "s"])
-    group = open_group(ds.encoding["source"])
-    basis = group[factored.basis_name(name)]
     full = np.zeros((pattern.sizes[LIGHT], *basis.shape[1:]), np.float32)
     full[(slice(None), box["r"], box["s"])] = pattern.transpose(LIGHT, "r", "s").values
     image = factored.relight(group[factored.weights_name(name)], basis,
