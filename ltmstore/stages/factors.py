@@ -142,17 +142,15 @@ def gather(group: zarr.Group, name: str, tile: tuple[int, int],
     packing = writer.packing
     for tiles in packing.blocks():
         rows, cols = packing.pixels(tiles)
+        i0, j0 = tiles[0].start, tiles[1].start
         top = int(packing.ranks[tiles].max())
         w = stage_w[rows, cols, :top]
-        _check_every_tile(w, side, (tiles[0].start, tiles[1].start), name, group)
+        _check_every_tile(w, side, (i0, j0), name, group)
         b = stage_b[tiles[0], tiles[1], :top]
-        parts = {}
-        for i in range(tiles[0].start, tiles[0].stop):
-            for j in range(tiles[1].start, tiles[1].stop):
-                k, y0, x0 = int(packing.ranks[i, j]), (i - tiles[0].start) * side, \
-                    (j - tiles[1].start) * side
-                parts[i, j] = (w[y0:y0 + side, x0:x0 + side, :k],
-                               b[i - tiles[0].start, j - tiles[1].start, :k])
+        parts = {(i, j): (w[(i - i0) * side:(i - i0 + 1) * side,
+                            (j - j0) * side:(j - j0 + 1) * side, :packing.ranks[i, j]],
+                          b[i - i0, j - j0, :packing.ranks[i, j]])
+                 for i in range(i0, tiles[0].stop) for j in range(j0, tiles[1].stop)}
         writer.write(tiles, parts)
     writer.close()
     for staged in staging_names(name):
