@@ -35,6 +35,8 @@ import numpy as np
 WEIGHTS, BASIS, RANKS = "_weights", "_basis", "_ranks"
 TILE_WEIGHTS, TILE_BASIS = "_tile_weights", "_tile_basis"  # staged by ltm reconstruct
 TILE_DIMS = ("factor_tile_y", "factor_tile_x")
+# the attributes the factors carry for their own reading, not the LTM's (units, long name ...)
+LAYOUT_ATTRS = ("factored_form_of", "tile", "image", "lattice_chunk")
 DEFAULT_TILE = 32
 HELDOUT_FRACTION = 0.3  # the factors' error against the model's held-out error, at most
 MAX_DB = 60.0  # no tile is kept closer than this to its dense LTM (float16 rounds at ~70 dB)

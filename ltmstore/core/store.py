@@ -432,12 +432,11 @@ def _derive_factored(ds: xr.Dataset, group: zarr.Group) -> xr.Dataset:
             continue
         tile = int(group[basis].attrs["tile"])
         coords = {k: ds[k] for k in ("y", "x", "r", "s") if k in ds.coords}
-        attrs = {k: v for k, v in ds[basis].attrs.items()
-                 if k not in ("factored_form_of", "tile", "image", "lattice_chunk")}
+        attrs = {k: v for k, v in ds[basis].attrs.items() if k not in factored.LAYOUT_ATTRS}
         cells = tuple(group[basis].attrs["lattice_chunk"])
-        values = np.asarray(group[ranks][...])
+        tile_ranks = np.asarray(group[ranks][...])
         for view, chunk in ((name, cells), (f"{name}_by_light", (1, 1))):
-            data = factored.derived(group[weights], group[basis], values, tile, chunk)
+            data = factored.derived(group[weights], group[basis], tile_ranks, tile, chunk)
             ds[view] = xr.DataArray(data, dims=("y", "x", "r", "s"), coords=coords,
                                     attrs=attrs)
     return ds

@@ -304,16 +304,15 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
         bar = tqdm(pool.map(factor, corners), total=len(corners), desc=f"factor {name}",
                    unit="tile", disable=not progress)
         parts = dict(zip(corners, bar, strict=True))
+    by_tile = {(y0 // tile, x0 // tile): part[:2] for (y0, x0), part in parts.items()}
     ranks = np.zeros((-(-ny // tile), -(-nx // tile)), int)
-    for (y0, x0), (w, *_) in parts.items():
-        ranks[y0 // tile, x0 // tile] = w.shape[2]
+    for index, (w, _) in by_tile.items():
+        ranks[index] = w.shape[2]
     writer = factors.PackedWriter(*factors.create(group, name, ranks, (ny, nx), cells,
                                                   src.chunks[2:], dtype, tile,
                                                   src.attrs.asdict()))
-    by_tile = {(y0 // tile, x0 // tile): part[:2] for (y0, x0), part in parts.items()}
     for tiles in writer.packing.blocks():
         writer.write(tiles, by_tile)
     writer.close()
-    used = [p[0].shape[2] for p in parts.values()]
     return (sum(p[2] for p in parts.values()), sum(p[3] for p in parts.values()),
-            {"min": min(used), "mean": float(np.mean(used)), "max": max(used)})
+            {"min": int(ranks.min()), "mean": float(ranks.mean()), "max": int(ranks.max())})

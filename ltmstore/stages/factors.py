@@ -38,8 +38,8 @@ def create(group: zarr.Group, name: str, ranks: np.ndarray, image: tuple[int, in
     rows (one file holds every cell)."""
     packing = factored.Packing(ranks, image, tile)
     weight_dim, row_dim = factored.packed_dims(name)
-    attrs = {**(attrs or {}), "factored_form_of": name, "tile": tile,
-             "image": [int(n) for n in image], "lattice_chunk": [int(c) for c in lattice_chunk]}
+    layout = (name, tile, [int(n) for n in image], [int(c) for c in lattice_chunk])
+    attrs = {**(attrs or {}), **dict(zip(factored.LAYOUT_ATTRS, layout, strict=True))}
     stored = st.create_variable(group, factored.ranks_name(name), factored.TILE_DIMS,
                                 packing.ranks.shape, chunks=packing.ranks.shape,
                                 dtype=np.int32, fill_value=0)
