@@ -116,3 +116,18 @@ def _fresh_process(script: str, *, timeout: float) -> str:
                           timeout=timeout, env=env)
     assert proc.returncode == 0, proc.stderr
     return proc.stdout
+
+
+def test_a_dropped_comm_future_prints_nothing_after_the_error_line():
+    """A cluster's dropped future with a ``TimeoutError`` (seen once after a full disk ended a
+    reconstruct) is not printed at exit, after the command's one error line."""
+    code = ("import asyncio, gc\n"
+            "from ltmstore.core.cluster import dask_client\n"
+            "with dask_client(small=True): pass\n"
+            "async def drop():\n"
+            "    f = asyncio.get_running_loop().create_future()\n"
+            "    f.set_exception(TimeoutError('Timeout'))\n"
+            "asyncio.run(drop()); gc.collect()\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0 and "never retrieved" not in proc.stderr, proc.stderr

@@ -88,18 +88,21 @@ def test_frame_sink_streams_by_block(tmp_path):
     np.testing.assert_allclose(group["chroma"][...], 0.0, atol=1e-6)
 
 
-def test_frame_sink_sums_as_numpy_does(tmp_path):
-    """The fused per-frame pass (stored planes, chroma sums and moments over the valid frames,
-    NaN as unobserved, brightness) gives what plain NumPy gives, NaN pixels included."""
+@pytest.mark.parametrize("expected_frames", [None, 6], ids=["compiled", "numpy"])
+def test_frame_sink_sums_as_numpy_does(tmp_path, expected_frames):
+    """The per-frame pass, compiled (a capture of unknown length) or NumPy's (a short one),
+    gives the stored planes, chroma sums and moments over the valid frames (NaN as
+    unobserved) and brightness that plain NumPy gives, NaN pixels included."""
     rng = np.random.default_rng(3)
     ycc = rng.uniform([0.05, -0.1, -0.1], [0.9, 0.1, 0.1], (6, 5, 7, 3)).astype(np.float32)
     ycc[2, 1:3, 4] = np.nan  # registered frames leave unobserved pixels NaN
     valid = np.array([True, True, True, False, True, True])
     group = zarr.open_group(str(tmp_path / "g.zarr"), mode="w", zarr_format=3)
-    sink = FrameSink(group, transfer="linear", chunk_frames=4)
+    sink = FrameSink(group, transfer="linear", chunk_frames=4, expected_frames=expected_frames)
     for frame, ok in zip(ycc, valid, strict=True):
         sink.add(np.zeros((5, 7, 3), np.uint8), bool(ok), source="f", ycc=frame)
     decision = sink.finish(np.arange(6.0))
+    assert ("numba" in type(sink._accumulate).__module__) == (expected_frames is None)
     np.testing.assert_array_equal(group["frames"][...], ycc[..., 0].astype(np.float16))
     np.testing.assert_array_equal(group["frame_chroma"][...],
                                   np.moveaxis(ycc[..., 1:], -1, 0).astype(np.float16))

@@ -78,10 +78,13 @@ def rgb_to_ycbcr(rgb: np.ndarray) -> np.ndarray:
 
 
 def rgb_from_ycbcr(y, cb, cr):
-    """``(R, G, B)`` from ``Y, Cb, Cr`` given separately (NumPy or xarray operands)."""
+    """``(R, G, B)`` from ``Y, Cb, Cr`` given separately (NumPy or xarray operands), in their
+    precision: the weights are Python floats, so float32 operands stay float32 (NumPy's float64
+    weights made green float64: 3x the time on a capture's frames)."""
+    red, green, blue = (float(w) for w in LUMA)
     r = y + 1.402 * cr
     b = y + 1.772 * cb
-    g = (y - LUMA[0] * r - LUMA[2] * b) / LUMA[1]
+    g = (y - red * r - blue * b) / green
     return r, g, b
 
 

@@ -67,6 +67,10 @@ DAMP_CELLS = 2.0  # the residual's weight falls as exp(-(distance / DAMP_CELLS c
 AUTO_GRID = {"residual": (0.0, 0.5, 1.0)}
 COMPILED = True  # near lights through the compiled kernel (False: the NumPy steps, for tests)
 SHARE_EVIDENCE = 0.5  # a pixel that saw less of its highlight's peak takes the tile's roughness
+# A far-light pixel stops iterating once a step lowers its cost by less than this fraction (or
+# its damping passes physical_far.DAMPING_MAX): on the icon 20 % less time in the surface fit,
+# held-out PSNR equal to 0.001 dB on five captures (the model moves by 7e-5 sRGB RMS)
+CONVERGED = 1e-4
 
 
 @dataclass(frozen=True, eq=False)
@@ -301,7 +305,7 @@ def _far_levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w
     toward, half = (np.ascontiguousarray(v[:, 0], dtype=np.float32)
                     for v in (lights.toward, lights.half))
     y32, w32 = (np.ascontiguousarray(v, dtype=np.float32) for v in (y, w))
-    cost = physical_far.levenberg_marquardt(out, toward, half, y32, w32, n_iter)
+    cost = physical_far.levenberg_marquardt(out, toward, half, y32, w32, n_iter, CONVERGED)
     return out, cost
 
 

@@ -29,6 +29,7 @@ from numba import njit
 FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
 LOG_ALPHA = (float(np.log(0.02)), 0.0)  # physical.ALPHA_RANGE, as the bounds of log alpha
 SLOPE_MAX = 3.0  # physical.SLOPE_MAX
+DAMPING_MAX = 1e6  # a pixel whose damping grows past this has converged (its steps vanish)
 
 
 @njit(cache=True, fastmath=FASTMATH)
@@ -168,10 +169,12 @@ def _clip(theta):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)  # nogil: surface.fit_image runs blocks on threads
-def levenberg_marquardt(theta, toward, half, y, w, n_iter):  # pragma: no cover - compiled
+def levenberg_marquardt(theta, toward, half, y, w, n_iter, tol):  # pragma: no cover - compiled
     """:func:`ltmstore.solve.physical.levenberg_marquardt` of pixels ``theta (n, 6)`` (float64,
     updated in place) at far lights ``toward``, ``half (3, M)`` (float32) with values and
-    weights ``y``, ``w (n, M)`` (float32). Returns each pixel's final cost ``(n,)``."""
+    weights ``y``, ``w (n, M)`` (float32): at most ``n_iter`` steps, fewer where a step lowers
+    the pixel's cost by at most ``tol`` times it or the damping passes :data:`DAMPING_MAX`.
+    Returns each pixel's final cost ``(n,)``."""
     costs = np.empty(len(theta))
     jtj, grad = np.empty((6, 6)), np.empty(6)
     system, rhs, step, trial = np.empty((6, 6)), np.empty(6), np.empty(6), np.empty(6)
@@ -198,10 +201,15 @@ def levenberg_marquardt(theta, toward, half, y, w, n_iter):  # pragma: no cover 
             moved = finite and trial_cost < cost
             if moved:
                 theta[i, :] = trial
+                done = cost - trial_cost <= tol * cost
                 cost = trial_cost
                 lam /= 3
+                if done:
+                    break
             else:
                 lam *= 4
+                if lam > DAMPING_MAX:
+                    break
         costs[i] = cost
     return costs
 
@@ -215,4 +223,4 @@ def warm_up() -> None:
     lights = np.ones((3, 2), dtype=np.float32)
     lights.flags.writeable = False  # as physical.far_lights' (broadcast) rows: one signature
     values = np.ones((1, 2), dtype=np.float32)
-    levenberg_marquardt(theta, lights, lights, values, values, 1)
+    levenberg_marquardt(theta, lights, lights, values, values, 1, 0.0)

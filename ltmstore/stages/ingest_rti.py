@@ -82,7 +82,8 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
     digest = hashlib.sha256()
     with new_store(store, overwrite=overwrite) as group:
         begin_stage(group, STAGE)
-        sink = FrameSink(group, transfer="srgb", chunk_frames=chunk_frames)
+        sink = FrameSink(group, transfer="srgb", chunk_frames=chunk_frames,
+                         expected_frames=len(names))
         # closing: the decoding threads end with an error too
         with closing(_decoded(lp_path.parent, names, sink.convert)) as images:
             bar = tqdm(zip(names, lights.valid, images, strict=True), total=len(names),

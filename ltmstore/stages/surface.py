@@ -167,8 +167,7 @@ def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = N
     where it is already read."""
     y = np.asarray(group["frames"][:])[valid].astype(np.float32) if luma is None else luma
     cb, cr = (np.asarray(group["frame_chroma"][i])[valid].astype(np.float32) for i in (0, 1))
-    # written channel by channel into float32: the stacked float64 image (green is computed in
-    # float64) took 4x the memory and time, and every fit reads float32
+    # written channel by channel into float32: a stacked image took twice the memory
     rgb = np.empty((*y.shape, 3), dtype=np.float32)
     for c, channel in enumerate(rgb_from_ycbcr(y, cb, cr)):
         np.maximum(channel, 0, out=rgb[..., c], casting="same_kind")
