@@ -32,13 +32,6 @@ LOOPBACK = "127.0.0.1"
 LOOPBACK_HTTP = {"dashboard_address": f"{LOOPBACK}:0", "worker_dashboard_address": f"{LOOPBACK}:0"}
 
 
-def _unretrieved(record: logging.LogRecord) -> bool:
-    """False for asyncio's "... exception was never retrieved" record: a comm future that a
-    closing cluster drops (a ``TimeoutError``, seen once in the suite after a full disk had
-    ended the run) is printed at exit, after the command's one error line."""
-    return "exception was never retrieved" not in str(record.msg)
-
-
 @contextmanager
 def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
                 timeout: float = SCHEDULER_TIMEOUT_S, small: bool = False) -> Iterator[Client]:
@@ -59,9 +52,6 @@ def dask_client(scheduler: str | None = None, *, n_workers: int | None = None,
         process (a :class:`~distributed.LocalCluster` with ``processes=False``, started in a
         fraction of a second) instead of starting worker processes.
     """
-    asyncio_log = logging.getLogger("asyncio")
-    if _unretrieved not in asyncio_log.filters:
-        asyncio_log.addFilter(_unretrieved)
     if scheduler:
         client = _connect(scheduler, timeout)
         with client:
