@@ -99,3 +99,22 @@ def ltm_here(capsys, *args) -> subprocess.CompletedProcess:
     code = main([str(a) for a in args])
     out, err = capsys.readouterr()
     return subprocess.CompletedProcess(["ltm", *map(str, args)], code, out, err)
+
+
+@contextmanager
+def tmpfs(folder: Path, size: str):
+    """``folder`` as a real disk of ``size`` (a tmpfs, ``64k``, ``3m``), unmounted after; the
+    test is skipped where mounting needs root or is not allowed."""
+    import pytest
+
+    folder.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
+                          capture_output=True, text=True)
+    if proc.returncode:
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], check=False)

@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import errno
 import os
-import subprocess
 
 import numpy as np
 import pytest
 import zarr
 from archive_helpers import copy_store
-from pipeline_helpers import ltm_here, only_error_line, run_ltm
+from pipeline_helpers import ltm_here, only_error_line, run_ltm, tmpfs
 
 from ltmstore.cli import MESSAGE_MAX, one_line
 from ltmstore.core.errors import LtmError, brief
@@ -22,15 +21,7 @@ from ltmstore.core.lights import normalise
 @pytest.fixture
 def full_disk(tmp_path):
     """A folder on a 64 KiB tmpfs filled to the last byte (a real ENOSPC, not a file limit)."""
-    mount = tmp_path / "full"
-    mount.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)],
-                          capture_output=True, text=True)
-    if proc.returncode:
-        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
-    try:
+    with tmpfs(tmp_path / "full", "64k") as mount:
         with open(mount / "filler", "wb", buffering=0) as fh:
             try:
                 while True:
@@ -38,8 +29,6 @@ def full_disk(tmp_path):
             except OSError as exc:
                 assert exc.errno == errno.ENOSPC
         yield mount
-    finally:
-        subprocess.run(["umount", str(mount)], check=False)
 
 
 def test_an_image_on_a_full_disk_is_one_error_and_no_file(full_disk):

@@ -182,3 +182,34 @@ def test_a_dense_form_over_the_free_disk_is_warned_of():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _warn_if_it_overflows({"dense_estimate_bytes": 10**9, "free_bytes": 15 * 10**9})
+
+
+def test_auto_on_a_short_disk_stores_the_factors_and_drops_the_frames(
+        tmp_path, small_acquisition, dask_cluster, capsys):
+    """On a disk whose free space is under twice the dense estimate (a real 3 MiB tmpfs: the
+    ingested 32 x 32 px store leaves about 2.4 MB, the dense form is estimated at 1.8 MB), the
+    default `ltm reconstruct` stores the factors and then drops the decoded frames as `ltm
+    compact` does, and says so; `--keep-frames` keeps them. Both stores relight the same."""
+    from pipeline_helpers import ltm_here, tmpfs
+
+    from ltmstore.stages.ingest import ingest
+
+    with tmpfs(tmp_path / "disk", "3m") as disk:
+        stores = {}
+        for name, extra in (("dropped", ()), ("kept", ("--keep-frames",))):
+            store = stores[name] = disk / f"{name}.zarr"
+            ingest(small_acquisition, store, progress=False)
+            proc = ltm_here(capsys, "reconstruct", store, "--lattice", "16x16",
+                            "--scheduler", dask_cluster.scheduler_address, *extra)
+            assert proc.returncode == 0, proc.stderr
+            assert "factored: the dense form would store" in proc.stdout
+            assert ("frames dropped" in proc.stdout) == (name == "dropped"), proc.stdout
+        assert not (stores["dropped"] / "frames").exists()
+        assert (stores["kept"] / "frames").is_dir()
+        compacted = zarr.open_group(str(stores["dropped"]), mode="r").attrs["stages"]["compact"]
+        assert compacted["complete"] and compacted["frames_dropped"]
+        assert ltm_here(capsys, "check", stores["dropped"]).returncode == 0
+        images = [relight(open_store(stores[n]), LIGHTS).values for n in ("dropped", "kept")]
+        np.testing.assert_array_equal(images[0], images[1])
+        again = ltm_here(capsys, "reconstruct", stores["dropped"], "--overwrite")
+        assert again.returncode == 2 and "ingest the acquisition again" in again.stderr

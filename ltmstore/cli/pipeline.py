@@ -126,7 +126,11 @@ def register(sub) -> None:
                    "rank within 0.3 of its held-out error, no dense LTM ever written (a few "
                    "percent of the bytes, for captures whose dense LTM does not fit; "
                    "near-light 4D stores); auto: dense while its store would take at most "
-                   "half the free disk, else factored (default: %(default)s)")
+                   "half the free disk, else factored, and then the decoded frames are "
+                   "dropped as `ltm compact` drops them (default: %(default)s)")
+    p.add_argument("--keep-frames", action="store_true",
+                   help="keep the decoded frames where auto stores the factors for lack of "
+                   "disk (reconstructing again then needs no new `ltm ingest`)")
     p.set_defaults(func=cmd_reconstruct)
 
     p = sub.add_parser("relight", help="render the store under new point lights",
@@ -293,7 +297,8 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
                        method=a.method, auto=not a.no_auto, tile=a.tile,
                        color={"auto": None, "on": True, "off": False}[a.color],
                        overwrite=a.overwrite, force=a.force,
-                       light_major=not a.no_light_major, form=a.form)
+                       light_major=not a.no_light_major, form=a.form,
+                       keep_frames=a.keep_frames)
     density = info["path_density"]
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
           + ("" if density is None else f"path density {density:.1f}/{plane_unit(a.store)}  ")
@@ -304,7 +309,8 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
           + f"resample {info['timings']['resample_s']:.1f} s  "
           f"solve {info['timings']['solve_s']:.1f} s" + placement_note(info.get("placement"))
           + (f"  factored: ranks {r['min']}-{r['max']}, mean {r['mean']:.1f}"
-             if (r := info.get("ranks", {}).get("ltm")) else "") + form_note(info))
+             if (r := info.get("ranks", {}).get("ltm")) else "") + form_note(info)
+          + frames_note(info.get("frames_dropped")))
 
 
 def form_note(info: dict) -> str:
@@ -317,6 +323,17 @@ def form_note(info: dict) -> str:
     return (f"  (factored: the dense form would store about "
             f"{size_text(choice['dense_estimate_bytes'])}, more than half of the "
             f"{size_text(choice['free_bytes'])} free)")
+
+
+def frames_note(dropped: dict | None) -> str:
+    """What dropping the decoded frames saved (empty where they were kept)."""
+    from ltmstore.stages.plan import size_text
+
+    if not dropped:
+        return ""
+    return (f"  frames dropped: store {size_text(dropped['bytes_before'])} -> "
+            f"{size_text(dropped['bytes_after'])} (--keep-frames keeps them; reconstructing "
+            "again needs a new ltm ingest)")
 
 
 def placement_note(record: dict | None) -> str:
