@@ -10,7 +10,7 @@ import shutil
 import numpy as np
 import pytest
 import zarr
-from pipeline_helpers import run_ltm
+from pipeline_helpers import ltm_here, run_ltm, tmpfs
 
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store, store_summary
@@ -190,8 +190,6 @@ def test_auto_on_a_short_disk_stores_the_factors_and_drops_the_frames(
     ingested 32 x 32 px store leaves about 2.4 MB, the dense form is estimated at 1.8 MB), the
     default `ltm reconstruct` stores the factors and then drops the decoded frames as `ltm
     compact` does, and says so; `--keep-frames` keeps them. Both stores relight the same."""
-    from pipeline_helpers import ltm_here, tmpfs
-
     from ltmstore.stages.ingest import ingest
 
     with tmpfs(tmp_path / "disk", "3m") as disk:

@@ -367,7 +367,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     -------
     dict
         What was done: lattice, K/M, path density, tiles solved and resumed, timings;
-        ``frames_dropped`` (``ltm compact``'s record) where the frames were dropped.
+        ``frames_dropped`` where the frames were dropped: the store's bytes before and after,
+        and the seconds it took (``ltm compact``'s ``compact`` record holds the rest).
     """
     if lattice is not None and delta_rs is not None:
         raise LtmError("give either --lattice or --delta-rs, not both")
