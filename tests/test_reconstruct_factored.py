@@ -71,7 +71,11 @@ def test_it_checks_relights_and_compacts_like_a_compacted_store(factored_run, sm
     assert again.returncode == 2 and "already holds the factored form" in again.stderr
     dropped = run_ltm("compact", store)
     assert dropped.returncode == 0, dropped.stderr
+    assert "ltm factored as ltm reconstruct stored it; frames dropped" in dropped.stdout
     assert "frames" not in os.listdir(store) and run_ltm("check", store).returncode == 0
+    assert store_summary(store)["compact"]["form"] == "factored"  # what the store holds
+    assert store_summary(store)["compact"]["precision"] == "float32"
+    assert run_ltm("compact", store).returncode == 0  # again: nothing left to drop
     np.testing.assert_array_equal(relight(store, LIGHTS).values, found)
 
 
@@ -206,6 +210,7 @@ def test_auto_on_a_short_disk_stores_the_factors_and_drops_the_frames(
         assert (stores["kept"] / "frames").is_dir()
         compacted = zarr.open_group(str(stores["dropped"]), mode="r").attrs["stages"]["compact"]
         assert compacted["complete"] and compacted["frames_dropped"]
+        assert compacted["form"] == "factored"
         assert ltm_here(capsys, "check", stores["dropped"]).returncode == 0
         images = [relight(open_store(stores[n]), LIGHTS).values for n in ("dropped", "kept")]
         np.testing.assert_array_equal(images[0], images[1])

@@ -418,8 +418,10 @@ def cmd_compact(a: argparse.Namespace) -> None:
     form = (f" factored (ranks {ranks['min']}-{ranks['max']}, mean {ranks['mean']:.1f}, per "
             f"{info['tile']} x {info['tile']} tile, {info['factor_bytes'] / 1e6:.1f} MB in place "
             f"of {info['dense_bytes'] / 1e6:.1f} MB)" if a.form == "factored" else "")
-    what = [f"ltm{form} {info['precision']}" + (f" (SNR {info['snr_db']:.1f} dB against float32)"
-                                                if info["snr_db"] is not None else " (lossless)"),
+    stored = "ltm factored as ltm reconstruct stored it" if info["form"] != a.form else (
+        f"ltm{form} {info['precision']}" + (f" (SNR {info['snr_db']:.1f} dB against float32)"
+                                            if info["snr_db"] is not None else " (lossless)"))
+    what = [stored,
             "frames dropped" if info["frames_dropped"] else
             f"frames kept{': ' + info['frames_kept_reason'] if info['frames_kept_reason'] else ''}"]
     print(f"{a.store}: {info['bytes_before'] / mb:.1f} MB -> {info['bytes_after'] / mb:.1f} MB; "

@@ -301,8 +301,10 @@ def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
     if reconstruct:
         maps = ["expected_error", "unsupported", "method_map"] if "method" in reconstruct else []
         ltms = ["ltm", *(f"ltm_{c}" for c in colour)]
-        compacted = done("compact").get("form") == "factored" and "ltm" not in metas
-        if reconstruct.get("form") == "factored" or compacted:  # either command's factors
+        by_reconstruct = reconstruct.get("form") == "factored"
+        compacted = (done("compact").get("form") == "factored" and not by_reconstruct
+                     and "ltm" not in metas)
+        if by_reconstruct or compacted:  # either command's factors
             ltms = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis", "_ranks")]
         if compacted:
             need.update({n: "compact" for n in ltms})

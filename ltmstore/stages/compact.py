@@ -79,7 +79,9 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
         Keep ``frames`` and ``frame_chroma`` (always kept for a far-light store).
     form : {"dense", "factored"}
         ``factored``: a basis per pixel tile and per-pixel weights in ``precision``, in place of
-        the dense LTM (lossy: ``snr_db`` is measured against the dense float32 LTM).
+        the dense LTM (lossy: ``snr_db`` is measured against the dense float32 LTM). A store
+        that ``ltm reconstruct`` factored keeps its factors as they are (its frames are
+        dropped; the record's ``form`` says ``factored``).
     target_db : float, optional
         The factored form's least SNR (dB) in every pixel tile, before rounding to
         ``precision``. None (the default): each tile's rank misses its dense LTM by at most
@@ -108,7 +110,9 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
     path = Path(os.path.abspath(path))
     group = st.open_group(path, mode="r")
     st.require_stage(group, "reconstruct", path)
-    if st.stages(group).get("compact", {}).get("form") == "factored":
+    recorded = st.stages(group)
+    by_reconstruct = recorded.get("reconstruct", {}).get("form") == "factored"
+    if recorded.get("compact", {}).get("form") == "factored" and not by_reconstruct:
         raise LtmError(f"store {str(path)!r} is already compacted to the factored form; run "
                        "ltm reconstruct --overwrite on a fresh ingest for a dense ltm")
     if form == "factored" and factored.weights_name(LTM) in group:
@@ -126,7 +130,9 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
                         if form == "dense" else
                         _factor_copy(real, side, PRECISIONS[precision], drop, target_db, tile,
                                      progress))
-                info.update(precision=precision, form=form,
+                held = str(group[factored.weights_name(LTM)].dtype) if by_reconstruct else None
+                info.update(precision=held or precision,
+                            form="factored" if by_reconstruct else form,
                             frames_dropped=bool(drop) or not _has_frames(side),
                             frames_kept_reason="far-light store: relit from its frames" if far
                             else None, bytes_before=before)
