@@ -45,6 +45,17 @@ WEIGHT_CHUNK = 1 << 20  # packed weights per stored chunk (4 MiB of float32)
 ROW_CHUNK = 4096  # basis rows per stored chunk (of one cell; a shard holds every cell)
 
 
+def factored_by(stages: dict) -> str | None:
+    """Which command stored the LTM as factors, from a store's stage records: ``reconstruct``
+    or ``compact`` (each with ``form: factored``), or None (a dense LTM). A plain ``ltm compact``
+    of a store that ``ltm reconstruct`` factored records ``form: factored`` as well; those
+    factors remain reconstruct's."""
+    for stage in ("reconstruct", "compact"):
+        if (stages.get(stage) or {}).get("form") == "factored":
+            return stage
+    return None
+
+
 def weights_name(name: str) -> str:
     """The weights variable of the LTM variable ``name``."""
     return f"{name}{WEIGHTS}"

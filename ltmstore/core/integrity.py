@@ -31,6 +31,7 @@ from pathlib import Path
 
 import zarr
 
+from ltmstore.core import factored
 from ltmstore.core.checksum import is_checksum_error
 
 COORDINATES = ("t", "y", "x", "r", "s", "p", "q", "channel", "color", "component")
@@ -301,10 +302,9 @@ def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
     if reconstruct:
         maps = ["expected_error", "unsupported", "method_map"] if "method" in reconstruct else []
         ltms = ["ltm", *(f"ltm_{c}" for c in colour)]
-        by_reconstruct = reconstruct.get("form") == "factored"
-        compacted = (done("compact").get("form") == "factored" and not by_reconstruct
-                     and "ltm" not in metas)
-        if by_reconstruct or compacted:  # either command's factors
+        maker = factored.factored_by({s: done(s) for s in ("reconstruct", "compact")})
+        compacted = maker == "compact" and "ltm" not in metas
+        if maker == "reconstruct" or compacted:  # either command's factors
             ltms = [f"{n}{part}" for n in ltms for part in ("_weights", "_basis", "_ranks")]
         if compacted:
             need.update({n: "compact" for n in ltms})

@@ -110,9 +110,8 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
     path = Path(os.path.abspath(path))
     group = st.open_group(path, mode="r")
     st.require_stage(group, "reconstruct", path)
-    recorded = st.stages(group)
-    by_reconstruct = recorded.get("reconstruct", {}).get("form") == "factored"
-    if recorded.get("compact", {}).get("form") == "factored" and not by_reconstruct:
+    maker = factored.factored_by(st.stages(group))
+    if maker == "compact":
         raise LtmError(f"store {str(path)!r} is already compacted to the factored form; run "
                        "ltm reconstruct --overwrite on a fresh ingest for a dense ltm")
     if form == "factored" and factored.weights_name(LTM) in group:
@@ -130,9 +129,9 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
                         if form == "dense" else
                         _factor_copy(real, side, PRECISIONS[precision], drop, target_db, tile,
                                      progress))
-                held = str(group[factored.weights_name(LTM)].dtype) if by_reconstruct else None
-                info.update(precision=held or precision,
-                            form="factored" if by_reconstruct else form,
+                kept = maker == "reconstruct"  # its factors stay as they are
+                info.update(precision=str(group[factored.weights_name(LTM)].dtype) if kept
+                            else precision, form="factored" if kept else form,
                             frames_dropped=bool(drop) or not _has_frames(side),
                             frames_kept_reason="far-light store: relit from its frames" if far
                             else None, bytes_before=before)
