@@ -51,7 +51,7 @@ def test_factored_ltm_equals_the_dense_one_within_its_recorded_snr(factored_stor
                                atol=1e-7)  # the same product, summed in another order
     recorded = store_summary(store)["compact"]
     assert recorded["form"] == "factored" and recorded["snr_db"] == info["snr_db"]
-    assert recorded["heldout_fraction"] == 0.3 and "target_db" not in recorded
+    assert recorded["rank_rule"] == "gavish-donoho" and "target_db" not in recorded
 
 
 def test_the_factors_lose_little_against_the_truth(factored_store, small_store,
@@ -177,10 +177,11 @@ def test_a_colour_ltm_is_factored_and_relights_in_colour(colour_store, tmp_path)
 
 
 @pytest.mark.parametrize("rank", [12, 40, 90])
-def test_a_tile_is_factored_at_the_least_rank_within_its_budget(rank):
-    """A 32 x 32 tile on 40 x 50 cells: ``rank`` strong directions over noise, a budget just
-    above the noise. The range finder (ranks up to 48) and the exact eigenpairs beyond it both
-    find the least rank (the exact SVD's) and leave out no more than the budget."""
+def test_a_tile_is_factored_at_the_least_rank_of_its_rule(rank):
+    """A 32 x 32 tile on 40 x 50 cells: ``rank`` strong directions over noise. With a budget
+    just above the noise, the range finder (ranks up to 48) and the exact eigenpairs beyond it
+    both find the least rank (the exact SVD's) and leave out no more than the budget; with the
+    held-out threshold for the noise's RMS (0.01), exactly the strong directions are kept."""
     from ltmstore.core import factored
 
     rng = np.random.default_rng(rank)
@@ -192,12 +193,17 @@ def test_a_tile_is_factored_at_the_least_rank_within_its_budget(rank):
     least = int(np.argmax(np.sum(a ** 2) - np.cumsum(s ** 2) <= allowed)) + 1
     w, b = factored.factor_tile(a.reshape(32, 32, 40, 50), allowed)
     assert w.shape == (32, 32, least) and b.shape == (least, 40, 50) and least == rank
-    sketched = factored._sketch(a, float(np.sum(a ** 2)), allowed)
+    sketched = factored._sketch(a, factored._enough(float(np.sum(a ** 2)), allowed, None))
     assert (sketched is None) == (rank > factored.SKETCH - factored.OVERSAMPLE)
     left = float(np.sum((a - w.reshape(1024, -1) @ b.reshape(least, -1)) ** 2))
     assert left <= allowed
+    assert factored.left_out(a, b) == pytest.approx(left / float(np.sum(a ** 2)), rel=1e-6)
     np.testing.assert_allclose(w.reshape(1024, -1).T @ w.reshape(1024, -1), np.eye(least),
                                atol=1e-9)
+    threshold = factored.heldout_threshold(np.full(1024, 0.01), (1024, 2000))
+    assert s[rank] < threshold < s[rank - 1]  # 0.89: above the noise's 0.77, below the signal
+    w, b = factored.factor_tile(a.reshape(32, 32, 40, 50), threshold=threshold)
+    assert w.shape == (32, 32, rank) and b.shape == (rank, 40, 50)
 
 
 def test_packed_factors_keep_each_tile_at_its_own_rank(tmp_path, monkeypatch):

@@ -49,7 +49,7 @@ def test_no_dense_ltm_is_written_and_the_factors_are_near_the_truth(
     assert {"ltm_weights", "ltm_basis"} <= names
     assert not names & {"ltm", "ltm_by_light", "ltm_tile_weights", "ltm_tile_basis",
                         "ltm_tiles_done"}
-    assert info["form"] == "factored" and info["heldout_fraction"] == 0.3
+    assert info["form"] == "factored" and info["rank_rule"] == "gavish-donoho"
     assert 9 <= info["ranks"]["ltm"]["min"] <= info["ranks"]["ltm"]["max"] <= 15  # 10-13
     ds = open_store(store)
     assert ds["ltm"].dims == ("y", "x", "r", "s") and ds["ltm"].chunks is not None

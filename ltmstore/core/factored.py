@@ -2,11 +2,11 @@
 and per-pixel weights (``ltm compact --form factored``, ``ltm reconstruct --form factored``).
 
 Each tile of ``tile x tile`` pixels holds its LTFs as the rows of a matrix ``A`` (pixels by
-cells); its truncated SVD ``A ~ U_k (S_k V_k)`` keeps the smallest rank ``k`` whose left-out
-energy is within a budget: by default :func:`heldout_budget`, a fraction of the model's own
-held-out error in that tile (the rank the data supports, no more), or :func:`target_budget`,
-``10**(-target/10)`` of the tile's energy (every tile keeps ``target`` dB against the dense
-LTM).
+cells); its truncated SVD ``A ~ U_k (S_k V_k)`` keeps a rank ``k`` set by one of two rules: by
+default :func:`heldout_threshold`, Gavish and Donoho's optimal hard threshold on the singular
+values for noise of the model's own held-out error in that tile (the rank the data supports, no
+more), or :func:`target_budget`, a left-out energy of ``10**(-target/10)`` of the tile's
+(every tile keeps ``target`` dB against the dense LTM).
 
 Ranks differ from tile to tile (at the 4K bench: median 9, 99th percentile 102), so the
 factors are stored packed, each tile at its own rank, never padded to the largest (padding made
@@ -38,7 +38,7 @@ TILE_DIMS = ("factor_tile_y", "factor_tile_x")
 # the attributes the factors carry for their own reading, not the LTM's (units, long name ...)
 LAYOUT_ATTRS = ("factored_form_of", "tile", "image", "lattice_chunk")
 DEFAULT_TILE = 32
-HELDOUT_FRACTION = 0.3  # the factors' error against the model's held-out error, at most
+RANK_RULE = "gavish-donoho"  # the default rank rule, as the stage records name it
 MAX_DB = 60.0  # no tile is kept closer than this to its dense LTM (float16 rounds at ~70 dB)
 BLOCK_TILES = 16  # tiles per side of a block (512 x 512 pixels): one Dask task of a view
 WEIGHT_CHUNK = 1 << 20  # packed weights per stored chunk (4 MiB of float32)
@@ -78,12 +78,14 @@ def packed_dims(name: str) -> tuple[str, str]:
     return f"factor_weight{suffix}", f"factor_row{suffix}"
 
 
-def factor_tile(values: np.ndarray, allowed: float) -> tuple[np.ndarray, np.ndarray]:
-    """Truncated SVD of one tile's LTFs, at the smallest rank whose left-out energy (sum of
-    squares) is at most ``allowed``.
+def factor_tile(values: np.ndarray, allowed: float = 0.0, threshold: float | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Truncated SVD of one tile's LTFs: at the smallest rank whose left-out energy (sum of
+    squares) is at most ``allowed``, or, given a ``threshold``, at the number of singular
+    values above it (at least 1).
 
     First a randomised range finder (:func:`_sketch`: 64 directions, one power iteration,
-    about a quarter of the time), which serves wherever its subspace meets the budget at a
+    about a quarter of the time), which serves wherever its subspace meets the rule at a
     rank its oversampling leaves well found; else the exact top of the spectrum from the
     tile's smaller Gram matrix (``A A^T`` of its pixels, or ``A^T A`` of its cells: one BLAS
     product and a symmetric eigensolver). Either way the left-out energy is that of the
@@ -94,8 +96,10 @@ def factor_tile(values: np.ndarray, allowed: float) -> tuple[np.ndarray, np.ndar
     values : ndarray
         ``(h, w, *cells)`` the tile's LTM, finite.
     allowed : float
-        The most energy the rank-``k`` product may leave out (:func:`target_budget`,
-        :func:`heldout_budget`); floored at ``MAX_DB`` below the tile's energy.
+        The most energy the rank-``k`` product may leave out (:func:`target_budget`), floored
+        at ``MAX_DB`` below the tile's energy (which a ``threshold`` stops at too).
+    threshold : float, optional
+        The least singular value kept (:func:`heldout_threshold`).
 
     Returns
     -------
@@ -107,38 +111,52 @@ def factor_tile(values: np.ndarray, allowed: float) -> tuple[np.ndarray, np.ndar
     h, w, *cells = values.shape
     a = values.reshape(h * w, -1).astype(np.float64)  # float32's Gram misses 50 dB by 1-2 dB
     total = float(np.sum(a ** 2))
-    allowed = max(allowed, total * 10 ** (-MAX_DB / 10))
-    u, basis = _sketch(a, total, allowed) or _exact(a, total, allowed)
+    enough = _enough(total, max(allowed, total * 10 ** (-MAX_DB / 10)), threshold)
+    u, basis = _sketch(a, enough) or _exact(a, enough)
     return u.reshape(h, w, -1), basis.reshape(-1, *cells)
+
+
+def _enough(total: float, allowed: float, threshold: float | None):
+    """The rule as ``enough(lam, complete)``: at each rank ``1, 2, ...``, whether it is met,
+    from the squared singular values ``lam`` (descending; ``complete``: all of them). A
+    threshold is met too where the left-out energy is within ``allowed`` (the ``MAX_DB``
+    floor)."""
+    def within(lam: np.ndarray, complete: bool) -> np.ndarray:
+        return total - np.cumsum(lam) <= allowed
+
+    if threshold is None:
+        return within
+    return lambda lam, complete: (np.append(lam[1:] <= threshold ** 2, complete)
+                                  | within(lam, complete))
 
 
 SKETCH, OVERSAMPLE = 64, 16  # directions of the range finder; those kept beyond the rank
 
 
-def _sketch(a: np.ndarray, total: float, allowed: float) -> tuple | None:
+def _sketch(a: np.ndarray, enough) -> tuple | None:
     """``U_k, S_k V_k^T`` from a randomised range finder with one power iteration (Halko,
     Martinsson and Tropp 2011; a fixed seed: the same tile, the same factors), or None where
     the tile is too small for it or its subspace needs more than ``SKETCH - OVERSAMPLE``
-    directions to meet ``allowed``."""
+    directions to meet the rule ``enough`` (:func:`_enough`)."""
     if 2 * SKETCH > min(a.shape):
         return None
     y = a @ np.random.default_rng(0).standard_normal((a.shape[1], SKETCH))
     y = a @ (a.T @ np.linalg.qr(y)[0])
     q = np.linalg.qr(y)[0]
     small, s, vt = np.linalg.svd(q.T @ a, full_matrices=False)
-    reachable = (total - np.cumsum(s ** 2) <= allowed)[: SKETCH - OVERSAMPLE]
+    reachable = enough(s ** 2, False)[: SKETCH - OVERSAMPLE]
     if not reachable.any():
         return None
     k = int(np.argmax(reachable)) + 1
     return q @ small[:, :k], s[:k, None] * vt[:k]
 
 
-def _exact(a: np.ndarray, total: float, allowed: float) -> tuple[np.ndarray, np.ndarray]:
+def _exact(a: np.ndarray, enough) -> tuple[np.ndarray, np.ndarray]:
     """``U_k, S_k V_k^T`` from the top eigenpairs of the smaller Gram matrix."""
     pixels_side = a.shape[0] <= a.shape[1]
     gram = a @ a.T if pixels_side else a.T @ a
-    lam, vec = _top_eigen(gram, lambda lam: total - np.cumsum(lam) <= allowed)
-    reachable = total - np.cumsum(lam) <= allowed  # left-out energy at rank 1, 2, ...
+    lam, vec = _top_eigen(gram, enough)
+    reachable = enough(lam, len(lam) == len(gram))  # the rule at rank 1, 2, ...
     k = int(np.argmax(reachable)) + 1 if reachable.any() else len(lam)
     if pixels_side:  # A ~ U_k (U_k^T A)
         u = vec[:, :k]
@@ -150,16 +168,16 @@ def _exact(a: np.ndarray, total: float, allowed: float) -> tuple[np.ndarray, np.
 
 def _top_eigen(gram: np.ndarray, enough, first: int = 64) -> tuple[np.ndarray, np.ndarray]:
     """The largest eigenvalues (float64, descending, clipped at 0) and their eigenvectors of the
-    symmetric ``gram``: the top ``first`` when ``enough(eigenvalues)`` holds somewhere among
-    them (LAPACK's ``syevr`` on a subset: the top 64 of a 1024 x 1024 Gram matrix in 0.29 s
-    against 0.56 s for all, on a loaded machine), else all of them."""
+    symmetric ``gram``: the top ``first`` when the rule ``enough(eigenvalues, False)`` holds
+    somewhere among them (LAPACK's ``syevr`` on a subset: the top 64 of a 1024 x 1024 Gram
+    matrix in 0.29 s against 0.56 s for all, on a loaded machine), else all of them."""
     from scipy.linalg import eigh
 
     n = len(gram)
     if 2 * first <= n:
         lam, vec = eigh(gram, subset_by_index=[n - first, n - 1], driver="evr")
         lam, vec = np.clip(lam[::-1], 0, None), vec[:, ::-1]
-        if enough(lam).any():
+        if enough(lam, False).any():
             return lam, vec
     lam, vec = np.linalg.eigh(gram)
     return np.clip(lam[::-1], 0, None), vec[:, ::-1]
@@ -170,19 +188,31 @@ def target_budget(values: np.ndarray, target_db: float) -> float:
     return float(np.sum(np.asarray(values, np.float64) ** 2)) * 10 ** (-target_db / 10)
 
 
-def heldout_budget(heldout_rms: np.ndarray, cells: int,
-                   fraction: float = HELDOUT_FRACTION) -> float:
-    """The left-out energy of a tile whose factors may miss by ``fraction`` of its model's
-    held-out error: ``fraction**2`` times the energy of an error of the pixels' held-out RMS
-    (``heldout_rms``, NaN: none, counts nothing) in each of ``cells`` cells.
+def heldout_threshold(heldout_rms: np.ndarray, shape: tuple[int, int]) -> float:
+    """The singular value below which a tile's factors are noise: Gavish and Donoho's optimal
+    hard threshold ("The optimal hard threshold for singular values is 4/sqrt(3)", IEEE Trans.
+    Inf. Theory 60, 2014) for a ``shape`` matrix (pixels, cells) whose entries carry noise of
+    the pixels' held-out RMS (``heldout_rms``, NaN: none, counts as 0).
 
-    The truncation then adds at most ``fraction**2`` (9 % at 0.3, 0.4 dB) to the error the
-    model already makes where it can be checked, and discards what lies below it: mostly the
-    solver's noise (at the Toys size the factors relight 0.4 dB nearer the truth than the
-    dense LTM, `bench/factored_bench.py`).
+    The held-out error holds the model's error as well as the video's noise, so the threshold
+    errs on the side of a lower rank. At the 4K bench it kept SNR_Y against the truth (36.58
+    against 36.53 dB) at a mean rank of 9.4 where keeping the factors within 0.3 of the
+    held-out error took 14.0.
     """
     rms = np.nan_to_num(np.asarray(heldout_rms, np.float64), nan=0.0, posinf=0.0)
-    return fraction ** 2 * float(np.sum(rms ** 2)) * cells
+    sigma = float(np.sqrt(np.mean(rms ** 2))) if rms.size else 0.0
+    m, n = sorted(int(d) for d in shape)
+    beta = m / n
+    scale = np.sqrt(2 * (beta + 1) + 8 * beta / (beta + 1 + np.sqrt(beta ** 2 + 14 * beta + 1)))
+    return float(scale * np.sqrt(n) * sigma)
+
+
+def left_out(values: np.ndarray, basis: np.ndarray) -> float:
+    """The fraction of the energy of ``values`` that factors of orthonormal weights and
+    ``basis`` leave out."""
+    total = float(np.sum(np.asarray(values, np.float64) ** 2))
+    kept = float(np.sum(np.asarray(basis, np.float64) ** 2))
+    return max(total - kept, 0.0) / total if total > 0 else 0.0
 
 
 def _sides(n: int, tile: int) -> np.ndarray:

@@ -115,7 +115,7 @@ def summary(attrs: dict) -> dict:
                    **({"stored": False, "removed_by": "ltm compact"}
                       if compact.get("frames_dropped") else {})},
         **({"compact": {k: compact[k] for k in ("precision", "form", "snr_db", "target_db",
-                                                "heldout_fraction",
+                                                "rank_rule", "heldout_fraction",
                                                 "tile", "ranks", "factor_bytes",
                                                 "dense_bytes", "frames_dropped",
                                                 "bytes_before", "finished") if k in compact}}

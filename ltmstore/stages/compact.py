@@ -84,10 +84,10 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
         dropped; the record's ``form`` says ``factored``).
     target_db : float, optional
         The factored form's least SNR (dB) in every pixel tile, before rounding to
-        ``precision``. None (the default): each tile's rank misses its dense LTM by at most
-        :data:`ltmstore.core.factored.HELDOUT_FRACTION` of the model's held-out error there
-        (the stored ``expected_error``; a colour LTM loses the same fraction of its energy as
-        the luminance of its tile).
+        ``precision``. None (the default): each tile keeps the singular values above the
+        noise of the model's held-out error there
+        (:func:`ltmstore.core.factored.heldout_threshold`, from the stored ``expected_error``;
+        a colour LTM loses the same fraction of its energy as the luminance of its tile).
     tile : int
         The factored form's pixel tile side.
     progress : bool
@@ -98,7 +98,7 @@ def compact(path: str | os.PathLike, *, precision: str = "float32",
     dict
         ``bytes_before``, ``bytes_after``, ``precision``, ``form``, ``snr_db`` (None when
         lossless), ``frames_dropped``, ``seconds``; for the factored form also ``tile``,
-        ``target_db`` or ``heldout_fraction`` (the rank rule) and ``ranks`` (min, mean, max
+        ``target_db`` or ``rank_rule`` (the rank rule) and ``ranks`` (min, mean, max
         over tiles, per LTM variable).
     """
     if precision not in PRECISIONS:
@@ -223,7 +223,7 @@ def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: floa
     target = zarr.open_group(str(side), mode="r+", zarr_format=3)
     signal = noise = 0.0
     ranks, stored = {}, {"dense_bytes": 0, "factor_bytes": 0}
-    kept = {}  # per tile: the fraction of its luminance energy the factors may leave out
+    kept = {}  # per tile: the fraction of its luminance energy the factors left out
     for name in LTM_NAMES:
         if name not in source:
             continue
@@ -231,13 +231,14 @@ def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: floa
             raise LtmError(f"the factored form holds a 4D ltm (y, x, r, s); this store's "
                            f"{name} has dims {source[name].metadata.dimension_names}")
         if target_db is not None:
-            budget = partial(_target_budget, target_db)
+            rule = partial(_target_rule, target_db)
         elif name == LTM:
-            budget = partial(_heldout_budget, *_heldout_inputs(source, path), kept)
+            rule = partial(_heldout_rule, *_heldout_inputs(source, path))
         else:  # a colour LTM leaves out as much of its energy as the luminance of its tile
-            budget = partial(_luma_fraction, kept)
-        s, n, ranks[name] = _write_factors(source[name], target, name, dtype, budget, tile,
-                                           progress)
+            rule = partial(_luma_rule, kept)
+        s, n, ranks[name], left = _write_factors(source[name], target, name, dtype, rule,
+                                                 tile, progress)
+        kept = left if name == LTM else kept
         signal, noise = signal + s, noise + n
         stored["factor_bytes"] += sum(store_bytes(side / n) for n in (
             factored.weights_name(name), factored.basis_name(name), factored.ranks_name(name)))
@@ -249,7 +250,7 @@ def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: floa
         shutil.rmtree(side / name, ignore_errors=True)
     snr = 10 * np.log10(signal / noise) if noise > 0 else float("inf")
     rule = ({"target_db": target_db} if target_db is not None
-            else {"heldout_fraction": factored.HELDOUT_FRACTION})
+            else {"rank_rule": factored.RANK_RULE})
     return {"snr_db": float(snr), "dropped": drop, "tile": tile, **rule, "ranks": ranks,
             **stored}
 
@@ -264,32 +265,32 @@ def _heldout_inputs(group: zarr.Group, path: Path) -> tuple[zarr.Array, zarr.Arr
     return group[EXPECTED_ERROR], group[SAMPLES]
 
 
-def _target_budget(target_db: float, corner: tuple[int, int], values: np.ndarray) -> float:
-    return factored.target_budget(values, target_db)
+def _target_rule(target_db: float, corner: tuple[int, int], values: np.ndarray) -> dict:
+    return {"allowed": factored.target_budget(values, target_db)}
 
 
-def _heldout_budget(error: zarr.Array, samples: zarr.Array, kept: dict,
-                    corner: tuple[int, int], values: np.ndarray) -> float:
-    """:func:`ltmstore.core.factored.heldout_budget` of the tile at ``corner``: the stored
+def _heldout_rule(error: zarr.Array, samples: zarr.Array, corner: tuple[int, int],
+                  values: np.ndarray) -> dict:
+    """:func:`ltmstore.core.factored.heldout_threshold` of the tile at ``corner``: the stored
     expected error (relative to the observed range) times the range of its samples."""
     where = tuple(slice(c, c + n) for c, n in zip(corner, values.shape[:2], strict=True))
     batch = np.asarray(samples[where], dtype=np.float32).reshape(-1, *samples.shape[2:])
     rms = np.asarray(error[where], np.float64).ravel() * observed_range(batch)
-    allowed = factored.heldout_budget(rms, int(np.prod(values.shape[2:])))
-    total = float(np.sum(np.asarray(values, np.float64) ** 2))
-    kept[corner] = allowed / total if total > 0 else 0.0
-    return allowed
+    shape = (len(batch), int(np.prod(values.shape[2:])))
+    return {"threshold": factored.heldout_threshold(rms, shape)}
 
 
-def _luma_fraction(kept: dict, corner: tuple[int, int], values: np.ndarray) -> float:
-    return kept.get(corner, 0.0) * float(np.sum(np.asarray(values, np.float64) ** 2))
+def _luma_rule(kept: dict, corner: tuple[int, int], values: np.ndarray) -> dict:
+    energy = float(np.sum(np.asarray(values, np.float64) ** 2))
+    return {"allowed": kept.get(corner, 0.0) * energy}
 
 
-def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
-                   tile: int, progress: bool) -> tuple[float, float, dict]:
-    """Factor ``src`` tile by tile (the left-out energy at most ``budget(corner, values)``) and
-    write ``{name}_weights`` and ``{name}_basis``; return the sums of squares of the values and
-    of the stored factors' error, and the ranks used."""
+def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, rule,
+                   tile: int, progress: bool) -> tuple[float, float, dict, dict]:
+    """Factor ``src`` tile by tile (:func:`ltmstore.core.factored.factor_tile` with the
+    arguments ``rule(corner, values)``) and write ``{name}_weights`` and ``{name}_basis``;
+    return the sums of squares of the values and of the stored factors' error, the ranks used,
+    and per tile corner the fraction of its energy left out."""
     ny, nx, *cells = src.shape
     corners = list(itertools.product(range(0, ny, tile), range(0, nx, tile)))
 
@@ -299,11 +300,13 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
         if not np.isfinite(values).all():
             raise LtmError(f"{name} holds non-finite values in the tile at y={y0}, x={x0}: the "
                            "factored form needs a finite ltm")
-        w, b = factored.factor_tile(values, budget(corner, values))
+        w, b = factored.factor_tile(values, **rule(corner, values))
+        left = factored.left_out(values, b)
         w, b = w.astype(dtype), b.astype(dtype)
         error = values.astype(np.float64) - np.tensordot(w.astype(np.float32),
                                                          b.astype(np.float32), axes=1)
-        return w, b, float(np.sum(values.astype(np.float64) ** 2)), float(np.sum(error ** 2))
+        return (w, b, float(np.sum(values.astype(np.float64) ** 2)),
+                float(np.sum(error ** 2)), left)
 
     with ThreadPoolExecutor(max_workers=2) as pool:
         bar = tqdm(pool.map(factor, corners), total=len(corners), desc=f"factor {name}",
@@ -320,4 +323,5 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, budget,
         writer.write(tiles, by_tile)
     writer.close()
     return (sum(p[2] for p in parts.values()), sum(p[3] for p in parts.values()),
-            {"min": int(ranks.min()), "mean": float(ranks.mean()), "max": int(ranks.max())})
+            {"min": int(ranks.min()), "mean": float(ranks.mean()), "max": int(ranks.max())},
+            {corner: part[4] for corner, part in parts.items()})

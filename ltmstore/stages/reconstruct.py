@@ -169,12 +169,14 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         if not np.isfinite(values).all():
             raise LtmError(f"the solution of tile {ty}, {tx} is not finite everywhere: the "
                            "factored form needs a finite ltm; nothing of it was written")
-        total = float(np.sum(np.asarray(values, np.float64) ** 2))
-        allowed = (fractions[ty, tx] * total if error is None else factored.heldout_budget(
-            error * observed_range(batch), int(np.prod(samples.shape[2:]))))
-        w, b = factored.factor_tile(values, allowed)
+        if error is None:  # a colour LTM leaves out the fraction its tile's luminance did
+            total = float(np.sum(np.asarray(values, np.float64) ** 2))
+            w, b = factored.factor_tile(values, fractions[ty, tx] * total)
+        else:
+            w, b = factored.factor_tile(values, threshold=factored.heldout_threshold(
+                error * observed_range(batch), (len(batch), int(np.prod(samples.shape[2:])))))
         factors.write_tile(out[FACTORS], where, (ty, tx), w, b)
-        record.update(rank=int(w.shape[2]), fraction=allowed / total if total > 0 else 0.0)
+        record.update(rank=int(w.shape[2]), fraction=factored.left_out(values, b))
     else:
         out[LTM][where] = estimate.reshape(samples.shape)
     record["seconds"] = time.perf_counter() - start
@@ -727,7 +729,7 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "heldout_error": _mean_heldout(records), "tiles_total": plan.n_tiles * passes,
             "tiles_solved": solved, "tiles_resumed": plan.n_tiles * passes - solved,
             "resumed": resumed, "timings": timings, "form": form,
-            **({"heldout_fraction": factored.HELDOUT_FRACTION} if form == "factored" else {}),
+            **({"rank_rule": factored.RANK_RULE} if form == "factored" else {}),
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image)),
             **({"placement": placement} if placement is not None else {})}
     names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]
