@@ -20,9 +20,10 @@ method, lattice, form) and ``ltm compact`` (drops the decoded frames). Each is t
 process, with the peak resident memory of its whole process tree (sampled every 0.2 s).
 Written to ``scale_4k.json``: each command's wall time, peak memory and stage record, the
 store's bytes per variable before and after ``ltm compact``, one point light's relighting time
-(median of 5, each on a freshly opened store) and SNR_Y against the simulation's truth on the
-pixels ``[4::8, 4::8]`` (the truth of a 4K pixel is that of the rendered pixel it was scaled
-from), beside the reference capture's.
+(median of 5, each on a freshly opened store; and warm, median of 10 on a store opened once,
+after a first light) and SNR_Y against the simulation's truth on the pixels ``[4::8, 4::8]``
+(the truth of a 4K pixel is that of the rendered pixel it was scaled from), beside the
+reference capture's.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ from ltmstore.core import store as st
 from ltmstore.core.dims import LUMA
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import encode, linearise, transfer_lut
-from ltmstore.judge.benchmark import random_lights, relight_cost
+from ltmstore.judge.benchmark import random_lights, relight_cost, warm_relight_cost
 from ltmstore.judge.evaluate import snr_db
 from ltmstore.stages.compact import store_bytes
 from ltmstore.synthetic.render import iter_frames
@@ -212,6 +213,8 @@ def _run(folder: Path, plan_args: dict, exposure: float, run: dict, form: str,
                 "snr_y_db_pixel_subset": snr_db(truth, estimate)})
     save()
     run["relight_point_light"] = relight_cost(store, random_lights(PLANE.to_json(), 5))
+    run["relight_point_light_warm"] = warm_relight_cost(store,
+                                                        random_lights(PLANE.to_json(), 11))
     run["load_average_1min_end"] = os.getloadavg()[0]
     save()
 

@@ -122,8 +122,8 @@ def register(sub) -> None:
                    "relit light reads every pixel tile (`ltm compact` adds the copy later)")
     p.add_argument("--form", choices=("auto", "dense", "factored"), default="auto",
                    help="dense: the LTM array and its light-major copy; factored: each tile "
-                   "stores a basis over the lattice cells and per-pixel weights at the least "
-                   "rank within 0.3 of its held-out error, no dense LTM ever written (a few "
+                   "stores a basis over the lattice cells and per-pixel weights at the rank "
+                   "its held-out error supports, no dense LTM ever written (a few "
                    "percent of the bytes, for captures whose dense LTM does not fit; "
                    "near-light 4D stores); auto: dense while its store would take at most "
                    "half the free disk, else factored, and then the decoded frames are "
@@ -180,8 +180,8 @@ def register(sub) -> None:
                    help="stored LTM precision (default: %(default)s, lossless)")
     p.add_argument("--form", choices=("dense", "factored"), default="dense",
                    help="dense: the LTM array; factored: per 32 x 32 pixel tile a basis over "
-                   "the lattice cells and per-pixel weights, at the least rank that misses the "
-                   "dense LTM by at most 0.3 of the model's held-out error in that tile (lossy, "
+                   "the lattice cells and per-pixel weights, keeping the singular values above "
+                   "the noise of the model's held-out error in that tile (lossy, "
                    "much smaller; its SNR against the dense float32 LTM is measured and "
                    "printed; relights from the factors) (default: %(default)s)")
     p.add_argument("--target-snr", type=number, default=None, metavar="DB",

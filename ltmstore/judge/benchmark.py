@@ -281,6 +281,20 @@ def relight_cost(store: Path, lights: np.ndarray) -> dict:
             "bytes_read_median": statistics.median(nbytes), "repeats": len(lights)}
 
 
+def warm_relight_cost(store: Path, lights: np.ndarray) -> dict:
+    """Median time of relighting one point light on a store opened once, as a notebook relights
+    light after light: the first light a warm-up, left out."""
+    ds = open_store(store)
+    relight(ds, [lights[0]], color=False).compute()
+    seconds = []
+    for light in lights[1:]:
+        start = time.perf_counter()
+        relight(ds, [light], color=False).compute()
+        seconds.append(time.perf_counter() - start)
+    return {"seconds_median": statistics.median(seconds), "seconds": seconds,
+            "repeats": len(seconds)}
+
+
 def write(records: list[dict], out: Path, *, command: str) -> dict:
     """``bench.json`` (records, summary, machine) and the charts, under ``out``."""
     out.mkdir(parents=True, exist_ok=True)

@@ -353,7 +353,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         planes); ``ltm compact`` can add it later. A far-light store has none.
     form : {"auto", "dense", "factored"}
         ``factored``: each tile's solver stores its LTFs as a basis and per-pixel weights at
-        the least rank within its held-out error (:mod:`ltmstore.stages.factors`, as ``ltm
+        the rank its held-out error supports (:mod:`ltmstore.stages.factors`, as ``ltm
         compact --form factored`` does) in place of the dense ``ltm`` and its light-major copy:
         a store of a few percent of the bytes, for captures whose dense LTM is too large.
         ``auto``: dense while it fits in half the free disk
