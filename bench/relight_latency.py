@@ -101,7 +101,8 @@ def measure(store: Path, *, light_major: bool, rng: np.random.Generator) -> dict
            "area": {**time_calls(ds, counting, areas),
                     "cells": int(np.median([(a.values > 0).sum() for a in areas]))}}
     if light_major:
-        env = [xr.DataArray(rng.random(LATTICE), dims=("r", "s")) for _ in range(3)]
+        cells = (ltm.sizes["r"], ltm.sizes["s"])  # the store's lattice, not the built one's
+        env = [xr.DataArray(rng.random(cells), dims=("r", "s")) for _ in range(3)]
         row["environment"] = time_calls(ds, counting, env)
     return row
 
