@@ -201,7 +201,7 @@ def test_a_tile_is_factored_at_the_least_rank_of_its_rule(rank):
     assert factored.left_out(a, b) == pytest.approx(left / float(np.sum(a ** 2)), rel=1e-6)
     np.testing.assert_allclose(w.reshape(1024, -1).T @ w.reshape(1024, -1), np.eye(least),
                                atol=1e-9)
-    threshold = factored.heldout_threshold(np.full(1024, 0.01), (1024, 2000))
+    threshold = factored.heldout_threshold(np.full(1024, 0.01), 2000)
     assert s[rank] < threshold < s[rank - 1]  # 0.89: above the noise's 0.77, below the signal
     w, b = factored.factor_tile(a.reshape(32, 32, 40, 50), threshold=threshold)
     assert w.shape == (32, 32, rank) and b.shape == (rank, 40, 50)

@@ -110,7 +110,7 @@ def factor_tile(values: np.ndarray, allowed: float = 0.0, threshold: float | Non
     """
     h, w, *cells = values.shape
     a = values.reshape(h * w, -1).astype(np.float64)  # float32's Gram misses 50 dB by 1-2 dB
-    total = float(np.sum(a ** 2))
+    total = energy(a)
     enough = _enough(total, max(allowed, total * 10 ** (-MAX_DB / 10)), threshold)
     u, basis = _sketch(a, enough) or _exact(a, enough)
     return u.reshape(h, w, -1), basis.reshape(-1, *cells)
@@ -183,16 +183,21 @@ def _top_eigen(gram: np.ndarray, enough, first: int = 64) -> tuple[np.ndarray, n
     return np.clip(lam[::-1], 0, None), vec[:, ::-1]
 
 
+def energy(values: np.ndarray) -> float:
+    """The sum of squares of ``values``, in float64."""
+    return float(np.sum(np.asarray(values, np.float64) ** 2))
+
+
 def target_budget(values: np.ndarray, target_db: float) -> float:
     """The left-out energy that keeps ``target_db`` of SNR against ``values``."""
-    return float(np.sum(np.asarray(values, np.float64) ** 2)) * 10 ** (-target_db / 10)
+    return energy(values) * 10 ** (-target_db / 10)
 
 
-def heldout_threshold(heldout_rms: np.ndarray, shape: tuple[int, int]) -> float:
+def heldout_threshold(heldout_rms: np.ndarray, cells: int) -> float:
     """The singular value below which a tile's factors are noise: Gavish and Donoho's optimal
     hard threshold ("The optimal hard threshold for singular values is 4/sqrt(3)", IEEE Trans.
-    Inf. Theory 60, 2014) for a ``shape`` matrix (pixels, cells) whose entries carry noise of
-    the pixels' held-out RMS (``heldout_rms``, NaN: none, counts as 0).
+    Inf. Theory 60, 2014) for the tile's matrix (its pixels by ``cells``) whose entries carry
+    noise of the pixels' held-out RMS (``heldout_rms``, one per pixel; NaN: none, counts as 0).
 
     The held-out error holds the model's error as well as the video's noise, so the threshold
     errs on the side of a lower rank. Against the energy budget before it (the factors within
@@ -202,7 +207,7 @@ def heldout_threshold(heldout_rms: np.ndarray, shape: tuple[int, int]) -> float:
     """
     rms = np.nan_to_num(np.asarray(heldout_rms, np.float64), nan=0.0, posinf=0.0)
     sigma = float(np.sqrt(np.mean(rms ** 2))) if rms.size else 0.0
-    m, n = sorted(int(d) for d in shape)
+    m, n = sorted((rms.size, int(cells)))
     beta = m / n
     scale = np.sqrt(2 * (beta + 1) + 8 * beta / (beta + 1 + np.sqrt(beta ** 2 + 14 * beta + 1)))
     return float(scale * np.sqrt(n) * sigma)
@@ -211,9 +216,8 @@ def heldout_threshold(heldout_rms: np.ndarray, shape: tuple[int, int]) -> float:
 def left_out(values: np.ndarray, basis: np.ndarray) -> float:
     """The fraction of the energy of ``values`` that factors of orthonormal weights and
     ``basis`` leave out."""
-    total = float(np.sum(np.asarray(values, np.float64) ** 2))
-    kept = float(np.sum(np.asarray(basis, np.float64) ** 2))
-    return max(total - kept, 0.0) / total if total > 0 else 0.0
+    total = energy(values)
+    return max(total - energy(basis), 0.0) / total if total > 0 else 0.0
 
 
 def _sides(n: int, tile: int) -> np.ndarray:

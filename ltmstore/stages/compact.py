@@ -276,13 +276,11 @@ def _heldout_rule(error: zarr.Array, samples: zarr.Array, corner: tuple[int, int
     where = tuple(slice(c, c + n) for c, n in zip(corner, values.shape[:2], strict=True))
     batch = np.asarray(samples[where], dtype=np.float32).reshape(-1, *samples.shape[2:])
     rms = np.asarray(error[where], np.float64).ravel() * observed_range(batch)
-    shape = (len(batch), int(np.prod(values.shape[2:])))
-    return {"threshold": factored.heldout_threshold(rms, shape)}
+    return {"threshold": factored.heldout_threshold(rms, int(np.prod(values.shape[2:])))}
 
 
 def _luma_rule(kept: dict, corner: tuple[int, int], values: np.ndarray) -> dict:
-    energy = float(np.sum(np.asarray(values, np.float64) ** 2))
-    return {"allowed": kept.get(corner, 0.0) * energy}
+    return {"allowed": kept.get(corner, 0.0) * factored.energy(values)}
 
 
 def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, rule,
@@ -305,8 +303,7 @@ def _write_factors(src: zarr.Array, group: zarr.Group, name: str, dtype, rule,
         w, b = w.astype(dtype), b.astype(dtype)
         error = values.astype(np.float64) - np.tensordot(w.astype(np.float32),
                                                          b.astype(np.float32), axes=1)
-        return (w, b, float(np.sum(values.astype(np.float64) ** 2)),
-                float(np.sum(error ** 2)), left)
+        return w, b, factored.energy(values), factored.energy(error), left
 
     with ThreadPoolExecutor(max_workers=2) as pool:
         bar = tqdm(pool.map(factor, corners), total=len(corners), desc=f"factor {name}",

@@ -170,11 +170,10 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
             raise LtmError(f"the solution of tile {ty}, {tx} is not finite everywhere: the "
                            "factored form needs a finite ltm; nothing of it was written")
         if error is None:  # a colour LTM leaves out the fraction its tile's luminance did
-            total = float(np.sum(np.asarray(values, np.float64) ** 2))
-            w, b = factored.factor_tile(values, fractions[ty, tx] * total)
+            w, b = factored.factor_tile(values, fractions[ty, tx] * factored.energy(values))
         else:
             w, b = factored.factor_tile(values, threshold=factored.heldout_threshold(
-                error * observed_range(batch), (len(batch), int(np.prod(samples.shape[2:])))))
+                error * observed_range(batch), int(np.prod(samples.shape[2:]))))
         factors.write_tile(out[FACTORS], where, (ty, tx), w, b)
         record.update(rank=int(w.shape[2]), fraction=factored.left_out(values, b))
     else:
