@@ -436,6 +436,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                 with st.revised_store(path) as side:
                     info = _on_cluster(side, client, scheduler, run)
     except OSError as exc:  # a full disk, a store made read-only during the run
+        st.settle_writes()  # no write of this process lands after the error
         kept = ("the previous ltm is untouched" if revise
                 else "its reconstruct stage stays incomplete")
         raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}; {kept}") from exc
