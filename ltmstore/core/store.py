@@ -92,10 +92,10 @@ def new_store(path: str | os.PathLike, *, overwrite: bool = False,
             yield group
             swap_in(tmp, path)
         except OSError as exc:
-            discard(tmp)
+            _discard(tmp)
             raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}") from exc
         except BaseException:
-            discard(tmp)
+            _discard(tmp)
             raise
 
 
@@ -122,7 +122,7 @@ def settle_writes(timeout: float = 60.0) -> bool:
     return True
 
 
-def discard(folder: Path) -> None:
+def _discard(folder: Path) -> None:
     """Remove a store folder that a failed write leaves, once Zarr's writes have settled (a
     write still going after a minute is left to the next writer's :func:`remove_leftovers`)."""
     settle_writes()
@@ -243,7 +243,7 @@ def revised_store(path: str | os.PathLike, *, resumable: bool = True) -> Iterato
         yield side
         swap_in(side, path)
     except BaseException:
-        discard(side)
+        _discard(side)
         raise
 
 
