@@ -131,9 +131,9 @@ print(mapped, (heap() - before) >> 20)
 def test_frame_sized_buffers_are_mapped_on_their_own_while_ingest_decodes():
     """glibc raises its mmap threshold to the size of a freed mapped buffer, so the buffers of
     the frames after it come from the heap (where ``ltm ingest`` of a 4K video grew by 14-23 GB
-    in 3 bench runs); ingest calls ``memory.map_large_buffers`` first. A fresh process frees one
-    25 MB buffer and then holds 20 more: the heap grows by all of them (500 MiB) without the
-    setting, by none with it."""
+    in 3 bench runs); a ``VideoReader`` calls ``memory.map_large_buffers`` first. A fresh
+    process frees one 25 MB buffer and then holds 20 more: the heap grows by all of them
+    (500 MiB) without the setting, by none with it."""
     default = _fresh_process(HEAP_GROWTH.format(mapped=False), timeout=60).split()
     assert default == ["None", "500"]
     mapped, grown_mib = _fresh_process(HEAP_GROWTH.format(mapped=True), timeout=60).split()

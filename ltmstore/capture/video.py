@@ -17,6 +17,7 @@ import av
 import av.logging
 import numpy as np
 
+from ltmstore.core import memory
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import transfer_lut
 
@@ -43,9 +44,16 @@ class VideoReader:
         The frame count the container declares (or its duration times ``fps``), when it does.
     dropped : dict
         Frames left out so far, per reason (``damaged``, ``missing``).
+
+    Notes
+    -----
+    Opening one fixes glibc's mmap threshold for the process
+    (:func:`ltmstore.core.memory.map_large_buffers`): frame-sized buffers are mapped on their
+    own and unmapped when freed, instead of piling up in the heap.
     """
 
     def __init__(self, path: Path, *, allow_dropped: bool = False) -> None:
+        memory.map_large_buffers()  # each decoded frame's buffers leave with the frame
         self.path = path
         self.allow_dropped = allow_dropped
         self.dropped = {"damaged": 0, "missing": 0}

@@ -12,7 +12,8 @@ are allocated and freed once per frame. glibc maps an allocation that large on i
 freeing one raises its threshold to that size (up to 32 MB), so the next frames' buffers come
 from the heap, where they can stay: ``ltm ingest`` of a 4K video at 700 Mbit/s grew its heap
 by about 130 MB a second while it scanned the video, to 14-23 GB, in 3 of 3 runs of
-``bench/scale_4k.py`` (never when run alone). :func:`map_large_buffers` fixes the threshold.
+``bench/scale_4k.py`` (never when run alone). :func:`map_large_buffers` fixes the threshold;
+every :class:`~ltmstore.capture.video.VideoReader` sets it.
 """
 
 from __future__ import annotations

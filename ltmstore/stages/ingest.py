@@ -46,7 +46,6 @@ from ltmstore.capture.acquisition import Acquisition, load_acquisition, load_pos
 from ltmstore.capture.register import ViewRig
 from ltmstore.capture.undistort import Undistorter
 from ltmstore.capture.video import VideoReader
-from ltmstore.core import memory
 from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import begin_stage, new_store
@@ -124,7 +123,6 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         more than can be corrected (nothing is written then).
     """
     started = time.perf_counter()
-    memory.map_large_buffers()  # each decoded frame's buffers go back to the system when freed
     acq = load_acquisition(acq_dir)
     poses = load_poses(acq.poses)
     if acq.view_plane is not None and poses.p is None:
