@@ -23,10 +23,11 @@ import functools
 
 
 @functools.cache
-def _malloc_trim():
-    """glibc's ``malloc_trim``, or None where the C library has none (macOS, Windows, musl)."""
+def _glibc(name: str):
+    """The C library's function ``name`` (glibc's ``malloc_trim``, ``mallopt``), or None where
+    it has none (macOS, Windows, musl)."""
     try:
-        return ctypes.CDLL(None).malloc_trim
+        return getattr(ctypes.CDLL(None), name)
     except (AttributeError, OSError, TypeError):
         return None
 
@@ -39,7 +40,7 @@ def trim() -> bool:
     bool
         Whether the C library could trim (glibc); False where there is nothing to call.
     """
-    function = _malloc_trim()
+    function = _glibc("malloc_trim")
     if function is None:
         return False
     function(0)
@@ -60,8 +61,5 @@ def map_large_buffers(threshold: int = LARGE_BUFFER) -> bool:
     bool
         Whether the C library took the setting (glibc); False where there is none.
     """
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (AttributeError, OSError, TypeError):
-        return False
-    return bool(mallopt(M_MMAP_THRESHOLD, int(threshold)))
+    mallopt = _glibc("mallopt")
+    return mallopt is not None and bool(mallopt(M_MMAP_THRESHOLD, int(threshold)))
