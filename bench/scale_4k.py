@@ -13,6 +13,10 @@ colour is illumination invariant, so the store keeps no per-frame chroma) as a p
 preset; ``--bitrate`` sets another rate for both). The same at the rendered size makes the
 reference capture. ``--target`` scales to another size: ``--target 1152x1152 --bitrate 8`` gives
 each pixel the bits of 50 Mbit/s at 4K, and a high ``--bitrate`` nearly none of its loss.
+``--colour`` writes the painting in colour instead (each linear RGB channel scaled and noisy as
+above): its chroma changes with the light (a white highlight on coloured paint), so ingest keeps
+each frame's chroma and ``ltm reconstruct`` adds the Cb and Cr LTMs; the result then also holds
+SNR_RGB (linear RGB of the three LTMs against the rendered RGB truth, the same pixel subset).
 
 The product's own commands then run on both, as a user runs them: ``ltm ingest
 --exposure-locked`` (the simulator's camera is locked), ``ltm reconstruct`` (every default:
@@ -44,7 +48,7 @@ import psutil
 
 from ltmstore.capture.video import VideoReader
 from ltmstore.core import store as st
-from ltmstore.core.dims import LUMA
+from ltmstore.core.dims import CHROMA_LTM, LTM, LUMA, rgb_from_ycbcr
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import encode, linearise, transfer_lut
 from ltmstore.judge.benchmark import random_lights, relight_cost, warm_relight_cost
@@ -79,26 +83,31 @@ def main() -> None:
                         help="keep the captures in --work and reuse them when there")
     parser.add_argument("--form", choices=("auto", "dense", "factored"), default="auto",
                         help="ltm reconstruct --form (default: its own default)")
+    parser.add_argument("--colour", action="store_true",
+                        help="a colour painting (default: grey); writes scale_4k_colour.json")
     parser.add_argument("--only", choices=("reference", "4k"),
                         help="run one capture's commands only")
     args = parser.parse_args()
     work = Path(args.work)
     plan_args = dict(scene="canvas", seed=0, size=args.size, speed=args.speed, plane=PLANE)
     target = tuple(int(n) for n in args.target.split("x"))
-    made = _captures(work, plan_args, target, args.bitrate, reuse=args.reuse)
+    made = _captures(work, plan_args, target, args.bitrate, reuse=args.reuse,
+                     colour=args.colour)
     result = {"command": "python bench/" + " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
               "machine": _machine(),
               "render_size": args.size, "speed_m_s": args.speed, "bitrate_mbit_s": args.bitrate,
+              "colour": args.colour,
               "captures": made,
               "runs": {}}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    json_name = "scale_4k_colour.json" if args.colour else "scale_4k.json"
     for name in ("reference", "4k"):
         if args.only in (None, name):
             run = result["runs"][name] = {}
             _run(work / name, plan_args, made["exposure"], run, args.form,
-                 save=lambda: (out / "scale_4k.json").write_text(json.dumps(result, indent=2)
-                                                                 + "\n"))
+                 save=lambda: (out / json_name).write_text(json.dumps(result, indent=2)
+                                                           + "\n"))
     print(json.dumps(result, indent=2))
 
 
@@ -109,13 +118,13 @@ def _machine() -> dict:
 
 
 def _captures(work: Path, plan_args: dict, target: tuple[int, int], bitrate: float, *,
-              reuse: bool) -> dict:
-    """The rendered capture, and from it the grey reference and 4K captures (kept in ``work``
-    with ``reuse``)."""
+              reuse: bool, colour: bool) -> dict:
+    """The rendered capture, and from it the reference and 4K captures, grey or in
+    ``colour`` (kept in ``work`` with ``reuse``)."""
     facts = work / "captures.json"
     if reuse and facts.exists():
         made = json.loads(facts.read_text())
-        if made.get("bitrate_mbit_s", BITRATE) == bitrate:
+        if (made.get("bitrate_mbit_s", BITRATE), made.get("colour", False)) == (bitrate, colour):
             return made
     shutil.rmtree(work, ignore_errors=True)
     start = time.perf_counter()
@@ -127,29 +136,33 @@ def _captures(work: Path, plan_args: dict, target: tuple[int, int], bitrate: flo
     for seed, (name, scale) in enumerate(scaled.items()):
         acq = _folder(work / "rendered", work / name / "acq")
         noise = np.random.default_rng(seed)
-        frames = (_noisy(scale(y), noise) for y in _luminance(work / "rendered" / "video.mkv"))
+        frames = (_noisy(scale(y), noise) for y in _linear(work / "rendered" / "video.mkv",
+                                                           colour=colour))
         write_h264(acq / "video.mp4", frames, bitrate=int(bitrate * 1e6), preset="veryfast")
     made = {"frames": sim["frames"], "exposure": sim["exposure"], "bitrate_mbit_s": bitrate,
+            "colour": colour,
             "render_s": round(rendered, 1), "encode_s": round(time.perf_counter() - start, 1),
             "video_bytes": {n: (work / n / "acq" / "video.mp4").stat().st_size for n in scaled}}
     facts.write_text(json.dumps(made, indent=2))
     return made
 
 
-def _luminance(video: Path) -> Iterator[np.ndarray]:
-    """The linear luminance of each of the video's frames."""
+def _linear(video: Path, *, colour: bool) -> Iterator[np.ndarray]:
+    """Each of the video's frames in linear light: RGB in ``colour``, else its luminance."""
     lut = transfer_lut("srgb", bits=8)
     with VideoReader(video) as reader:
         for _, rgb in reader.frames():
-            yield linearise(rgb, lut) @ LUMA.astype(np.float32)
+            linear = linearise(rgb, lut)
+            yield linear if colour else linear @ LUMA.astype(np.float32)
 
 
-def _noisy(y: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """A grey sRGB frame of linear luminance ``y`` with the simulator's sensor noise drawn
-    anew at this frame's own resolution (a 4K sensor's pixels are noisy one by one)."""
-    sigma = np.sqrt(READ_NOISE**2 + SHOT_NOISE * np.clip(y, 0, None))
-    code = encode(y + sigma * rng.standard_normal(y.shape, dtype=np.float32), "srgb")
-    return np.repeat(code[..., None], 3, axis=-1)
+def _noisy(linear: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """An sRGB frame of linear light (luminance: grey; or RGB) with the simulator's sensor
+    noise drawn anew at this frame's own resolution (a 4K sensor's pixels are noisy one by
+    one)."""
+    sigma = np.sqrt(READ_NOISE**2 + SHOT_NOISE * np.clip(linear, 0, None))
+    code = encode(linear + sigma * rng.standard_normal(linear.shape, dtype=np.float32), "srgb")
+    return code if code.ndim == 3 else np.repeat(code[..., None], 3, axis=-1)
 
 
 def _folder(rendered: Path, acq: Path) -> Path:
@@ -196,21 +209,30 @@ def _run(folder: Path, plan_args: dict, exposure: float, run: dict, form: str,
         save()
     run["both_wall_s"] = round(run["ingest"]["wall_s"] + run["reconstruct"]["wall_s"], 1)
     record = st.stages(st.open_group(store, mode="r"))
-    ltm = open_store(store)["ltm"]
+    ds = open_store(store)
+    ltm = ds[LTM]
     lights = [(r, s, PLANE.height) for r in ltm["r"].values for s in ltm["s"].values]
     sub = slice(SNR_STEP // 2, None, SNR_STEP)
     rows, cols = (np.arange(n)[sub] * plan_args["size"] // n for n in ltm.shape[:2])
-    estimate = np.concatenate([ltm.isel(y=band, x=np.arange(ltm.shape[1])[sub]).values
+
+    def subset(name: str) -> np.ndarray:  # the LTM ``name`` at the scored pixels
+        return np.concatenate([ds[name].isel(y=band, x=np.arange(ltm.shape[1])[sub]).values
                                for band in np.array_split(np.arange(ltm.shape[0])[sub], 9)])
+
+    estimate = subset(LTM)
     plan = plan_simulation(**plan_args)
-    truth = np.stack([frame[rows][:, cols] @ LUMA.astype(np.float32)
-                      for frame in iter_frames(plan.scene, lights)], axis=-1)
-    truth = truth.reshape(estimate.shape) * exposure
+    truth_rgb = np.stack([frame[rows][:, cols] for frame in iter_frames(plan.scene, lights)],
+                         axis=-2) * exposure  # (y, x, cell, colour)
+    truth = (truth_rgb @ LUMA.astype(np.float32)).reshape(estimate.shape)
     run.update({"image": list(ltm.shape[:2]), "lattice": list(ltm.shape[2:]),
                 "stage_records": {k: record.get(k) for k in ("ingest", "resample",
                                                              "reconstruct", "compact")},
                 "store_bytes": store_bytes(store), "variable_bytes": _variable_bytes(store),
                 "snr_y_db_pixel_subset": snr_db(truth, estimate)})
+    if CHROMA_LTM["cb"] in ds:  # a colour LTM: its linear RGB against the rendered RGB
+        rgb = np.stack(rgb_from_ycbcr(estimate, subset(CHROMA_LTM["cb"]),
+                                      subset(CHROMA_LTM["cr"])), axis=-1)
+        run["snr_rgb_db_pixel_subset"] = snr_db(truth_rgb.reshape(rgb.shape), rgb)
     save()
     run["relight_point_light"] = relight_cost(store, random_lights(PLANE.to_json(), 5))
     run["relight_point_light_warm"] = warm_relight_cost(store,
