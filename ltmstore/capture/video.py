@@ -6,6 +6,8 @@ decoder, and a frame decoded from it, or from the frames after it up to the next
 predict from it, holds wrong values. Such frames, frames missing from the time stamps and a
 stream that ends before the frame count its container declares are errors; with
 ``allow_dropped`` they are left out, counted (:attr:`VideoReader.dropped`) and reported.
+A phone's 4:2:0 frames are converted to RGB by :func:`~ltmstore.capture.yuv.frame_to_rgb`
+(smooth chroma, the frame's own matrix and range), not by FFmpeg's blocky 8-bit conversion.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import av
 import av.logging
 import numpy as np
 
+from ltmstore.capture.yuv import frame_to_rgb
 from ltmstore.core import memory
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import transfer_lut
@@ -106,7 +109,7 @@ class VideoReader:
                 why = "; ".join(errors) or "it predicts from a damaged frame"
                 self._drop("damaged", 1, f"frame {index} is damaged ({why})")
                 continue
-            yield index, frame.to_ndarray(format="rgb24")
+            yield index, frame_to_rgb(frame)
         self._check_complete(expected)
 
     def _decoded(self) -> Iterator[tuple[int, av.VideoFrame, list[str]]]:
