@@ -7,9 +7,9 @@ changes from pixel to pixel (paint), the blocky chroma moves the pixels' RGB, an
 luminance with it, although the video's own luma is right there. :func:`frame_to_rgb`
 interpolates the chroma planes bicubically (each sample at the centre of its 2 x 2 pixels, as
 libx264 fed by FFmpeg's scaler writes them: 0.3 dB better there than at the left column's) and
-converts with the frame's own matrix (BT.601, BT.709 or
-BT.2020, per its ``colorspace`` tag; untagged as BT.601, FFmpeg's default) and range (studio or
-full swing, per its ``color_range`` tag or a ``yuvj`` format), in one OpenCV transform.
+converts with the frame's own matrix (BT.601, BT.709 or BT.2020, per its ``colorspace`` tag;
+untagged as BT.601, FFmpeg's default) and range (studio or full swing, per its ``color_range``
+tag or a ``yuvj`` format), in one OpenCV transform.
 
 The simulator's colour canvas at 1280 x 720 in H.264 (``bench/scale_4k.py --colour``): SNR_Y of
 the whole pipeline against the truth 42.47 dB with this conversion, 33.09 dB with FFmpeg's;
