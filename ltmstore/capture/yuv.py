@@ -19,6 +19,8 @@ semi-planar) keep FFmpeg's conversion.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -60,9 +62,11 @@ def frame_to_rgb(frame) -> np.ndarray:
     return cv2.transform(cv2.merge([luma, cb, cr]), matrix)
 
 
+@functools.cache
 def ycbcr_matrix(kr: float, kb: float, *, full: bool) -> np.ndarray:
     """The ``3 x 4`` affine map (``cv2.transform``) of 8-bit Y'CbCr code values to R'G'B' code
-    values, for luma weights ``kr``, ``kb`` and studio (16-235, 16-240) or ``full`` swing."""
+    values, for luma weights ``kr``, ``kb`` and studio (16-235, 16-240) or ``full`` swing
+    (cached, read-only: one per video, not one per frame)."""
     kg = 1 - kr - kb
     to_rgb = np.array([[1, 0, 2 * (1 - kr)],
                        [1, -2 * (1 - kb) * kb / kg, -2 * (1 - kr) * kr / kg],
@@ -70,7 +74,9 @@ def ycbcr_matrix(kr: float, kb: float, *, full: bool) -> np.ndarray:
     scale = np.array([1.0, 1.0, 1.0]) if full else np.array([255 / 219, 255 / 224, 255 / 224])
     offset = np.array([0.0, 128.0, 128.0]) + (0 if full else np.array([16.0, 0, 0]))
     linear = to_rgb * scale
-    return np.hstack([linear, -(linear @ offset)[:, None]]).astype(np.float32)
+    matrix = np.hstack([linear, -(linear @ offset)[:, None]]).astype(np.float32)
+    matrix.setflags(write=False)
+    return matrix
 
 
 def _plane(plane) -> np.ndarray:
