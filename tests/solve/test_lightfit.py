@@ -54,3 +54,19 @@ def test_choice_follows_the_data():
     sharp = np.exp(-np.sum((train - [0.5, 0, np.sqrt(0.75)]) ** 2, axis=1) / 0.02)[:, None]
     model, _ = choose(sharp * np.ones((1, 4)), train)
     assert model.family == "rbf"
+
+
+def test_weights_of_the_same_lights_are_computed_once_and_cannot_be_changed():
+    from ltmstore.solve.lightfit import _cached_weights
+
+    train, query = dome(), elevation_azimuth([20, 50, 85], [10, 200, 300])
+    model = Model("hsh3+rbf:0.3:0.01")
+    _cached_weights.cache_clear()
+    first = model.weights(train, query)
+    again = model.weights(train.copy(), np.asfortranarray(query))  # the same values
+    assert again is first
+    # the HSH + RBF model asked for its RBF part once: two entries, no second computation
+    assert _cached_weights.cache_info().misses == 2
+    assert not first.flags.writeable
+    np.testing.assert_array_equal(first, model._weights(train, query))
+    assert model.weights(train[:-1], query).shape == (3, len(train) - 1)  # other lights: anew
