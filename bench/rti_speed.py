@@ -197,6 +197,10 @@ def chart(result: dict, before: dict | None, path: Path) -> None:
 
     names = list(result["captures"])
     runs = [("before", before), ("now", result)] if before else [("now", result)]
+    if any("old_both_s" in r for r in result["captures"].values()):  # --old: the same run
+        old = {n: {k.removeprefix("old_"): v for k, v in r.items() if k.startswith("old_")}
+               for n, r in result["captures"].items()}
+        runs.insert(-1, ("old code, same run", {**result, "captures": old}))
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.4))
     slots = len(runs) + 1  # the peer's bar after the runs'
     width = 0.8 / slots
@@ -236,7 +240,7 @@ def chart(result: dict, before: dict | None, path: Path) -> None:
         ax.legend(fontsize=7, loc="upper left")
         ax.set_ylim(top=ax.get_ylim()[1] * 1.25)  # room for the legend
     loads = "; ".join(f"{label}: load average {res['load_start']} -> {res['load_end']}"
-                      for label, res in runs)
+                      for label, res in runs if label != "old code, same run")
     fig.suptitle(f"{loads} ({os.cpu_count()} cores); medians of {result['repeats']}",
                  fontsize=9)
     fig.tight_layout()
