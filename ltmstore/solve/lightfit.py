@@ -99,8 +99,8 @@ def _cached_weights(model: Model, train: bytes, query: bytes) -> np.ndarray:
 
     A capture's fit asks for the same weights many times (each fold of
     :func:`ltmstore.stages.surface.cross_validated` scores the residual smoothers, the
-    exposures and the blends on the same lights): a 240-light dome spent 1.7 s of its 4 s
-    recomputing them."""
+    exposures and the blends on the same lights): a 240-light dome's ``reconstruct`` spent
+    1.7 s of its threads' time recomputing them."""
     weights = model._weights(*(np.frombuffer(b).reshape(-1, 3) for b in (train, query)))
     weights.flags.writeable = False
     return weights
