@@ -55,7 +55,12 @@ class Browser:
         port = self._devtools_port(timeout)
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=timeout) as r:
             page = next(t for t in json.load(r) if t["type"] == "page")
-        self.ws = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=timeout)
+        # no keepalive pings: a local socket needs none, and under load Chromium once left one
+        # unanswered for websockets' 20 s while its page finished a recording, which closed the
+        # connection mid-test (5 errors of tests/test_capture_browser.py in a clean-clone run,
+        # 2026-11-28); every call's own receive timeout is the guard
+        self.ws = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=timeout,
+                          ping_interval=None)
         self.ids = itertools.count(1)
         self.call("Emulation.setDeviceMetricsOverride", width=width, height=height,
                   deviceScaleFactor=1, mobile=False)
