@@ -57,6 +57,7 @@ REAL = ("realrti-item9-coin", "realrti-item3-icon", "loewenkopf")
 PEER_SCENE = "synthrti/multi-obj1-material1"
 PEER_SIZE = (0.22e6, 47)  # pixels, lights: the capture relight-cli fits in 0.4-0.8 s
 TARGET_BOTH_S = 5.0
+OLD_CODE = "old code, same run"  # the chart's label of --old's bars
 
 # relight-cli refuses ptm and hsh without the number of planes their colour fits take (RGB)
 RELIGHT_PLANES = {"ptm": ("-p", "18"), "hsh": ("-p", "27")}
@@ -200,7 +201,7 @@ def chart(result: dict, before: dict | None, path: Path) -> None:
     if any("old_both_s" in r for r in result["captures"].values()):  # --old: the same run
         old = {n: {k.removeprefix("old_"): v for k, v in r.items() if k.startswith("old_")}
                for n, r in result["captures"].items()}
-        runs.insert(-1, ("old code, same run", {**result, "captures": old}))
+        runs.insert(-1, (OLD_CODE, {**result, "captures": old}))
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.4))
     slots = len(runs) + 1  # the peer's bar after the runs'
     width = 0.8 / slots
@@ -240,7 +241,7 @@ def chart(result: dict, before: dict | None, path: Path) -> None:
         ax.legend(fontsize=7, loc="upper left")
         ax.set_ylim(top=ax.get_ylim()[1] * 1.25)  # room for the legend
     loads = "; ".join(f"{label}: load average {res['load_start']} -> {res['load_end']}"
-                      for label, res in runs if label != "old code, same run")
+                      for label, res in runs if label != OLD_CODE)
     fig.suptitle(f"{loads} ({os.cpu_count()} cores); medians of {result['repeats']}",
                  fontsize=9)
     fig.tight_layout()

@@ -29,10 +29,10 @@ WEIGHTS = {1: (0.2126, 0.0722),  # BT.709
            5: (0.299, 0.114), 6: (0.299, 0.114),  # BT.470BG, SMPTE 170M (BT.601)
            9: (0.2627, 0.0593), 10: (0.2627, 0.0593)}  # BT.2020
 UNTAGGED = (0.299, 0.114)  # FFmpeg's default: BT.601
-#: Planar 8-bit formats: chroma subsampling (rows, columns), and full swing by the format.
-PLANAR = {"yuv420p": ((2, 2), False), "yuvj420p": ((2, 2), True),
-          "yuv422p": ((1, 2), False), "yuvj422p": ((1, 2), True),
-          "yuv444p": ((1, 1), False), "yuvj444p": ((1, 1), True)}
+#: Planar 8-bit formats (any chroma subsampling: the planes' shapes say it), and whether the
+#: format itself means full swing.
+PLANAR = {"yuv420p": False, "yuvj420p": True, "yuv422p": False, "yuvj422p": True,
+          "yuv444p": False, "yuvj444p": True}
 FULL_RANGE = 2  # AVCOL_RANGE_JPEG
 
 
@@ -49,13 +49,12 @@ def frame_to_rgb(frame) -> np.ndarray:
     numpy.ndarray
         The frame's RGB code values, rounded and clipped to 0-255.
     """
-    layout = PLANAR.get(frame.format.name)
-    if layout is None:
+    full = PLANAR.get(frame.format.name)
+    if full is None:
         return frame.to_ndarray(format="rgb24")
-    (sub_y, sub_x), full = layout
     luma, cb, cr = (_plane(p) for p in frame.planes)
     height, width = luma.shape
-    if (sub_y, sub_x) != (1, 1):
+    if cb.shape != luma.shape:
         cb, cr = (cv2.resize(c, (width, height), interpolation=cv2.INTER_CUBIC) for c in (cb, cr))
     matrix = ycbcr_matrix(*WEIGHTS.get(frame.colorspace, UNTAGGED),
                           full=full or frame.color_range == FULL_RANGE)
