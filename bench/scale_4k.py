@@ -80,7 +80,8 @@ def main() -> None:
     parser.add_argument("--bitrate", type=float, default=BITRATE,
                         help="H.264 bit rate of both captures (Mbit/s)")
     parser.add_argument("--reuse", action="store_true",
-                        help="keep the captures in --work and reuse them when there")
+                        help="keep the captures in --work and reuse them when made alike (the "
+                             "render alone when only --target or --bitrate differs)")
     parser.add_argument("--form", choices=("auto", "dense", "factored"), default="auto",
                         help="ltm reconstruct --form (default: its own default)")
     parser.add_argument("--colour", action="store_true",
@@ -122,14 +123,19 @@ def _captures(work: Path, plan_args: dict, target: tuple[int, int], bitrate: flo
     """The rendered capture, and from it the reference and 4K captures, grey or in
     ``colour`` (kept in ``work`` with ``reuse``)."""
     facts = work / "captures.json"
-    if reuse and facts.exists():
-        made = json.loads(facts.read_text())
-        if (made.get("bitrate_mbit_s", BITRATE), made.get("colour", False)) == (bitrate, colour):
-            return made
-    shutil.rmtree(work, ignore_errors=True)
-    start = time.perf_counter()
-    sim = simulate_acquisition(work / "rendered", truth=False, progress=True, **plan_args)
-    rendered = time.perf_counter() - start
+    made = json.loads(facts.read_text()) if reuse and facts.exists() else {}
+    if [made.get(k) for k in ("render_size", "target", "bitrate_mbit_s", "colour")] == [
+            plan_args["size"], list(target), bitrate, colour]:
+        return made
+    if made.get("render_size") == plan_args["size"]:  # the same render, written anew
+        sim, rendered = made, made["render_s"]
+        for name in ("reference", "4k"):
+            shutil.rmtree(work / name, ignore_errors=True)
+    else:
+        shutil.rmtree(work, ignore_errors=True)
+        start = time.perf_counter()
+        sim = simulate_acquisition(work / "rendered", truth=False, progress=True, **plan_args)
+        rendered = time.perf_counter() - start
     start = time.perf_counter()
     rows, cols = (np.arange(n) * plan_args["size"] // n for n in target)
     scaled = {"reference": lambda y: y, "4k": lambda y: y[rows][:, cols]}
@@ -139,7 +145,8 @@ def _captures(work: Path, plan_args: dict, target: tuple[int, int], bitrate: flo
         frames = (_noisy(scale(y), noise) for y in _linear(work / "rendered" / "video.mkv",
                                                            colour=colour))
         write_h264(acq / "video.mp4", frames, bitrate=int(bitrate * 1e6), preset="veryfast")
-    made = {"frames": sim["frames"], "exposure": sim["exposure"], "bitrate_mbit_s": bitrate,
+    made = {"frames": sim["frames"], "exposure": sim["exposure"],
+            "render_size": plan_args["size"], "target": list(target), "bitrate_mbit_s": bitrate,
             "colour": colour,
             "render_s": round(rendered, 1), "encode_s": round(time.perf_counter() - start, 1),
             "video_bytes": {n: (work / n / "acq" / "video.mp4").stat().st_size for n in scaled}}
