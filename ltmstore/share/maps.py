@@ -6,9 +6,10 @@ normal, an albedo, a specular lobe and a roughness per pixel. :func:`write_maps`
 PNG files the photometric-stereo and RTI world reads: ``normal.png`` (16-bit RGB, ``(n / 2 +
 1 / 2) * 65535`` with R = x right, G = y up, B = z towards the camera: SynthRTI's encoding),
 ``albedo.png`` and ``specular.png`` (8-bit sRGB, each scaled so that its 99.5th percentile is
-white) and ``roughness.png`` (8-bit grey, GGX alpha in ``[0, 1]``). A near-light store whose
-tiles chose ``physical`` holds the same maps in luminance (no ``color`` dimension; NaN, written
-black, where a tile chose another method): its maps are written the same way, grey.
+white) and ``roughness.png`` (8-bit grey, the lobe's alpha in ``[0, 1]``, GGX or Beckmann). A
+near-light store whose tiles chose ``physical`` holds the same maps in luminance (no ``color``
+dimension; NaN, written black, where a tile chose another method): its maps are written the same
+way, grey.
 
 :func:`render_material` relights the model alone (no residual: exactly what the maps say) with
 the diffuse albedo and the lobe scaled, like the "specular enhancement" and "diffuse gain" modes
@@ -91,11 +92,12 @@ def _ramp(value: np.ndarray, edges: tuple[float, float]) -> np.ndarray:
     return np.clip((value - lo) / (hi - lo), 0.0, 1.0)
 
 
-def _block_support(normal: np.ndarray, roughness: np.ndarray, directions: np.ndarray
-                   ) -> np.ndarray:
-    """:func:`lobe_support` of the pixels ``normal (n, 3)``, ``roughness (n,)``."""
+def _block_support(normal: np.ndarray, roughness: np.ndarray, directions: np.ndarray,
+                   lobe: str) -> np.ndarray:
+    """:func:`lobe_support` of the pixels ``normal (n, 3)``, ``roughness (n,)`` (a lobe of the
+    distribution ``lobe``)."""
     n = len(normal)
-    lights = physical.far_lights(directions, n)
+    lights = physical.far_lights(directions, n, lobe)
     zeros, ones = np.zeros(n), np.ones(n)
 
     def term(albedo: np.ndarray, specular: np.ndarray) -> np.ndarray:
@@ -104,7 +106,7 @@ def _block_support(normal: np.ndarray, roughness: np.ndarray, directions: np.nda
 
     lobe, diffuse = term(zeros, ones), term(ones, zeros)
     alpha2 = roughness**2
-    peak = 1 / (np.pi * alpha2) / (4 * normal[:, 2])  # D_GGX(1) / (4 n.v)
+    peak = 1 / (np.pi * alpha2) / (4 * normal[:, 2])  # D(1) / (4 n.v), GGX's or Beckmann's
     evidence = lobe.max(axis=1) / peak
     basis = np.stack([diffuse, np.ones_like(diffuse)], axis=-1)  # what the lobe must not be
     gram = np.einsum("nmi,nmj->nij", basis, basis) + 1e-12 * np.eye(2)
@@ -147,7 +149,8 @@ def lobe_support(ds) -> np.ndarray:
     normal = ds[sf.NORMAL].values.reshape(-1, 3).astype(np.float64)
     roughness = ds[sf.ROUGHNESS].values.ravel().astype(np.float64)
     support = np.concatenate([
-        _block_support(normal[i:i + sf.BLOCK], roughness[i:i + sf.BLOCK], directions)
+        _block_support(normal[i:i + sf.BLOCK], roughness[i:i + sf.BLOCK], directions,
+                       sf.surface_lobe(ds))
         for i in range(0, len(normal), sf.BLOCK)])
     return np.nan_to_num(support).reshape(shape)
 
@@ -266,7 +269,8 @@ def render_material(ds, directions: np.ndarray | Sequence[Sequence[float]], *,
     support = lobe_support(ds) if support is None else support
     theta[..., 3] *= specular * support[..., None]  # faded as in the maps
     flat = theta.reshape(-1, 3, 6)
-    rgb = physical.render_colour(flat, physical.far_lights(dirs, len(flat)))  # (p, n, 3)
+    rgb = physical.render_colour(flat, physical.far_lights(dirs, len(flat),
+                                                           sf.surface_lobe(ds)))  # (p, n, 3)
     return np.moveaxis(rgb, 1, 0).reshape(len(dirs), h, w, 3).clip(min=0).astype(np.float32)
 
 

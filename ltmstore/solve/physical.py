@@ -1,9 +1,10 @@
 """A physical reflectance model per pixel, plus the interpolated residual of what it misses.
 
 Every pixel is a surface point ``P = (X, Y, 0)`` (``geometry.pixels``) with a unit normal ``n``, a
-diffuse albedo ``rho``, a specular lobe of strength ``k`` and roughness ``alpha`` (GGX), and an
-ambient floor ``a``; the light of lattice cell ``c`` sits at ``L = (r, s, h)``. With ``l`` the
-unit vector towards the light, ``d = |L - P|`` and the half vector ``H`` of ``l`` and the view
+diffuse albedo ``rho``, a specular lobe of strength ``k`` and roughness ``alpha`` (GGX; far
+lights also Beckmann, ``Lights.lobe``), and an ambient floor ``a``; the light of lattice cell
+``c`` sits at ``L = (r, s, h)``. With ``l`` the unit vector towards the light, ``d = |L - P|``
+and the half vector ``H`` of ``l`` and the view
 ``v = (0, 0, 1)``::
 
     t(c) = g(c) (rho max(n.l, 0) + k D_GGX(n.H; alpha) / (4 n.v)) + a,   g = (h / d)^m / d^2
@@ -41,7 +42,7 @@ the residual; ``--method auto`` then prefers another method by held-out error.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -52,7 +53,9 @@ from ltmstore.solve.cache import Recent
 if TYPE_CHECKING:
     from ltmstore.solve import Geometry
 
-ALPHA_RANGE = (0.02, 1.0)  # GGX roughness kept within these bounds
+ALPHA_RANGE = (0.02, 1.0)  # roughness (the lobe's alpha) kept within these bounds
+LOBES = ("ggx", "beckmann")  # microfacet distributions of the lobe (far lights: either)
+COS_MIN = 1e-3  # n.H kept above this in Beckmann's distribution (its 1 / cos^4 at grazing)
 SLOPE_MAX = 3.0  # |dh/dX|, |dh/dY| of a normal kept within this (72 degrees of tilt)
 START_ITER = 5  # Levenberg-Marquardt iterations from each start ...
 N_ITER = 10  # ... and from the better of them, per pixel
@@ -105,21 +108,25 @@ class Surface:
 class Lights:
     """Unit vectors towards the light ``toward (3, n, M)``, half vectors ``half (3, n, M)`` (of
     those and the view ``(0, 0, 1)``) and the fall-off ``g (n, M)`` of every (pixel, cell);
-    components first, so that each is a contiguous ``(n, M)`` array."""
+    components first, so that each is a contiguous ``(n, M)`` array. ``lobe``: the microfacet
+    distribution the model takes at these lights (one of :data:`LOBES`; near lights: GGX)."""
 
     toward: np.ndarray
     half: np.ndarray
     g: np.ndarray
     far: bool = False  # the same directions for every pixel, no fall-off (:func:`far_lights`)
+    lobe: str = "ggx"
 
     def take(self, cells: np.ndarray) -> Lights:
         """The lights of the cells ``cells`` only."""
-        return Lights(np.take(self.toward, cells, axis=-1), np.take(self.half, cells, axis=-1),
-                      np.take(self.g, cells, axis=-1), self.far)  # C-contiguous
+        return replace(self, toward=np.take(self.toward, cells, axis=-1),
+                       half=np.take(self.half, cells, axis=-1),
+                       g=np.take(self.g, cells, axis=-1))  # C-contiguous
 
     def rows(self, rows: np.ndarray) -> Lights:
         """The lights as seen from the pixels ``rows`` only."""
-        return Lights(self.toward[:, rows], self.half[:, rows], self.g[rows], self.far)
+        return replace(self, toward=self.toward[:, rows], half=self.half[:, rows],
+                       g=self.g[rows])
 
 
 def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
@@ -174,8 +181,8 @@ def _dot(vectors: np.ndarray, p: np.ndarray, q: np.ndarray, norm: np.ndarray) ->
 def _model(theta: np.ndarray, lights: Lights, jacobian: bool = False):
     """Model values ``(n, K)`` at parameters ``theta = (p, q, rho, k, log alpha, a)`` ``(n, 6)``,
     and with ``jacobian`` their derivatives ``(n, 6, K)``."""
-    if COMPILED and not jacobian and not lights.far and len(theta) and (
-            lights.g.dtype == np.float32):  # the kernel computes in float32, as NumPy does there
+    if COMPILED and not jacobian and not lights.far and lights.lobe == "ggx" and len(theta) and (
+            lights.g.dtype == np.float32):  # the kernel computes GGX in float32, as NumPy does
         return _near_model(theta, lights)
     p, q, rho, k, log_alpha, floor = (c[:, None].astype(lights.g.dtype) for c in theta.T)
     norm = np.sqrt(1 + p * p + q * q)
@@ -184,15 +191,13 @@ def _model(theta: np.ndarray, lights: Lights, jacobian: bool = False):
     ndoth = np.clip(_dot(lights.half, p, q, norm), 0.0, 1.0)
     lit = ndotl > 0
     cos = np.where(lit, ndotl, 0.0)
-    inv_u = 1 / (ndoth * ndoth * (a2 - 1) + 1)
-    dist = a2 / np.pi * inv_u * inv_u  # GGX D(n.H)
+    if not jacobian:
+        dist = _distribution(ndoth, a2, lights.lobe)
+        return lights.g * (rho * cos + k * (dist * (norm / 4))) + floor  # D / (4 n.v)
+    dist, dd_dc, dd_dlog_alpha = _distribution(ndoth, a2, lights.lobe, jacobian=True)
     lobe = dist * (norm / 4)  # D / (4 n.v), n.v = 1 / norm
     g = lights.g
     value = g * (rho * cos + k * lobe) + floor
-    if not jacobian:
-        return value
-    dd_dc = -4 * (a2 - 1) * ndoth * inv_u * dist
-    dd_dlog_alpha = 2 * dist * (1 - 2 * a2 * ndoth * ndoth * inv_u)
     jac = np.empty((len(theta), 6, value.shape[1]), dtype=value.dtype)
     for axis, slope in ((0, p), (1, q)):  # d(n.x)/dp = (-x_p - (n.x) p / norm) / norm
         dcos = np.where(lit, (-lights.toward[axis] - ndotl * slope / norm) / norm, 0.0)
@@ -204,6 +209,25 @@ def _model(theta: np.ndarray, lights: Lights, jacobian: bool = False):
     jac[:, 4] = g * k * dd_dlog_alpha * (norm / 4)
     jac[:, 5] = 1.0
     return value, jac
+
+
+def _distribution(ndoth: np.ndarray, a2: np.ndarray, lobe: str, *, jacobian: bool = False):
+    """The lobe's ``D(n.H)`` (``lobe``: GGX or Beckmann, roughness ``alpha^2 = a2``), and with
+    ``jacobian`` its derivatives in ``n.H`` and ``log alpha`` too."""
+    if lobe == "beckmann":  # exp(-tan^2 / a2) / (pi a2 cos^4), as physical_far._beckmann
+        c = np.maximum(ndoth, np.asarray(COS_MIN, dtype=ndoth.dtype))
+        c2 = c * c
+        tan2 = (1 - c2) / c2
+        dist = np.exp(-tan2 / a2) / (np.pi * a2 * c2 * c2)
+        if not jacobian:
+            return dist
+        return dist, dist * (2 / (c2 * c * a2) - 4 / c), dist * (2 * tan2 / a2 - 2)
+    inv_u = 1 / (ndoth * ndoth * (a2 - 1) + 1)
+    dist = a2 / np.pi * inv_u * inv_u  # GGX
+    if not jacobian:
+        return dist
+    return (dist, -4 * (a2 - 1) * ndoth * inv_u * dist,
+            2 * dist * (1 - 2 * a2 * ndoth * ndoth * inv_u))
 
 
 def _near_model(theta: np.ndarray, lights: Lights) -> np.ndarray:
@@ -233,10 +257,9 @@ def _basis(theta: np.ndarray, lights: Lights) -> np.ndarray:
     a2 = np.exp(2 * log_alpha)
     ndotl = _dot(lights.toward, p, q, norm)
     ndoth = np.clip(_dot(lights.half, p, q, norm), 0.0, 1.0)
-    inv_u = 1 / (ndoth * ndoth * (a2 - 1) + 1)
     basis = np.empty((len(theta), 3, lights.g.shape[1]), dtype=lights.g.dtype)
     basis[:, 0] = lights.g * np.where(ndotl > 0, ndotl, 0.0)
-    basis[:, 1] = lights.g * (a2 / np.pi * inv_u * inv_u * (norm / 4))
+    basis[:, 1] = lights.g * (_distribution(ndoth, a2, lights.lobe) * (norm / 4))
     basis[:, 2] = 1.0
     return basis
 
@@ -276,7 +299,7 @@ def levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w: np.
     same steps pixel by pixel."""
     if lights.far and len(theta):
         return _far_levenberg_marquardt(theta, lights, y, w, n_iter=n_iter)
-    if COMPILED and len(theta):
+    if COMPILED and lights.lobe == "ggx" and len(theta):  # the near kernel's lobe is GGX
         return _near_levenberg_marquardt(theta, lights, y, w, n_iter=n_iter)
     theta = _clip(theta.copy())
     cost = _cost(theta, lights, y, w)
@@ -305,7 +328,8 @@ def _far_levenberg_marquardt(theta: np.ndarray, lights: Lights, y: np.ndarray, w
     toward, half = (np.ascontiguousarray(v[:, 0], dtype=np.float32)
                     for v in (lights.toward, lights.half))
     y32, w32 = (np.ascontiguousarray(v, dtype=np.float32) for v in (y, w))
-    cost = physical_far.levenberg_marquardt(out, toward, half, y32, w32, n_iter, CONVERGED)
+    cost = physical_far.levenberg_marquardt(out, toward, half, y32, w32,
+                                            lights.lobe == "beckmann", n_iter, CONVERGED)
     return out, cost
 
 
@@ -381,16 +405,18 @@ def fit_parameters(y: np.ndarray, w: np.ndarray, lights: Lights, *, n_iter: int 
     return best, w
 
 
-def far_lights(directions: np.ndarray, n: int) -> Lights:
+def far_lights(directions: np.ndarray, n: int, lobe: str = "ggx") -> Lights:
     """Distant lights at unit ``directions (M, 3)``, the same for all ``n`` pixels (no
-    fall-off): a classic RTI capture."""
+    fall-off): a classic RTI capture; the model's ``lobe`` there (one of :data:`LOBES`)."""
+    if lobe not in LOBES:
+        raise LtmError(f"lobe {lobe!r} is not one of {', '.join(LOBES)}")
     toward = np.ascontiguousarray(np.asarray(directions, dtype=np.float32).T)
     half = toward.copy()
     half[2] += 1
     half /= np.sqrt((half**2).sum(axis=0))
     shape = (3, n, toward.shape[1])
     return Lights(np.broadcast_to(toward[:, None], shape), np.broadcast_to(half[:, None], shape),
-                  np.ones(shape[1:], dtype=np.float32), far=True)
+                  np.ones(shape[1:], dtype=np.float32), far=True, lobe=lobe)
 
 
 def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.ndarray:
@@ -402,10 +428,11 @@ def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.n
     luminance = rgb @ LUMA
     theta, w = fit_parameters(luminance, np.ones_like(luminance), lights, n_iter=n_iter)
     basis = _basis(theta, lights)  # the same geometry for the three channels
-    # At the largest roughness a far light's lobe is as flat as the floor: their split was
+    # At the largest roughness a far light's GGX lobe is as flat as the floor: their split was
     # left to rounding, and clipping the negative one at 0 could leave a pixel several times
     # brighter than its photographs. The floor takes it there (no lobe).
-    basis[theta[:, 4] >= np.log(ALPHA_RANGE[1]), 1] = 0.0
+    if lights.lobe == "ggx":
+        basis[theta[:, 4] >= np.log(ALPHA_RANGE[1]), 1] = 0.0
     return np.stack([_linear_terms(theta, lights, rgb[..., c], w, basis=basis)
                      for c in range(3)], axis=1)
 

@@ -8,7 +8,10 @@ fuses them into one loop per pixel (Numba), the same model and steps as
 the normal equations, the damped system solved in float64, a step kept only where it lowers the
 pixel's cost. Measured on the coin (4096 pixels, 48 lights, one core, load 2): the
 Levenberg-Marquardt steps 4x faster, a whole ``surface.fit_pixels`` 0.14 s against 0.35 s;
-parameters equal to float32 rounding, held-out PSNR within 0.002 dB.
+parameters equal to float32 rounding, held-out PSNR within 0.002 dB. The lobe is GGX's or
+Beckmann's (:func:`_beckmann`, a flag of every call): GGX's fit of 4096 pixels of the coin took
+as long with the flag as without (medians of 7: 0.229 and 0.272 s against 0.232 and 0.263 s,
+load 4), its parameters equal but for float32 rounding (6e-7 in log alpha at the median).
 
 The kernels compile on first use (about 5 s, once) and are cached on disk (``cache=True``);
 loading them and Numba costs a far-light ``ltm reconstruct`` about 1-1.5 s of CPU, which
@@ -30,11 +33,25 @@ FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
 LOG_ALPHA = (float(np.log(0.02)), 0.0)  # physical.ALPHA_RANGE, as the bounds of log alpha
 SLOPE_MAX = 3.0  # physical.SLOPE_MAX
 DAMPING_MAX = 1e6  # a pixel whose damping grows past this has converged (its steps vanish)
+COS_MIN = 1e-3  # physical.COS_MIN
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def _beckmann(ndoth, a2):  # pragma: no cover - compiled
+    """Beckmann's ``D(n.H)`` and its derivatives in ``n.H`` and ``log alpha`` (float32)."""
+    f1 = np.float32(1.0)
+    c = max(ndoth, np.float32(COS_MIN))
+    c2 = c * c
+    tan2 = (f1 - c2) / c2
+    dist = np.exp(-tan2 / a2) / (np.float32(np.pi) * a2 * c2 * c2)
+    dd_dc = dist * (np.float32(2) / (c2 * c * a2) - np.float32(4) / c)
+    return dist, dd_dc, dist * (np.float32(2) * tan2 / a2 - np.float32(2))
 
 
 @njit(cache=True, fastmath=FASTMATH)
-def _cost(theta, toward, half, y, w):  # pragma: no cover - compiled
-    """Weighted squared error of one pixel's model at ``theta (6,)`` (float32 sums)."""
+def _cost(theta, toward, half, y, w, beckmann):  # pragma: no cover - compiled
+    """Weighted squared error of one pixel's model at ``theta (6,)`` (float32 sums), its lobe
+    GGX or ``beckmann``."""
     f0, f1, pi = np.float32(0.0), np.float32(1.0), np.float32(np.pi)
     p, q = np.float32(theta[0]), np.float32(theta[1])
     rho, k = np.float32(theta[2]), np.float32(theta[3])
@@ -45,15 +62,19 @@ def _cost(theta, toward, half, y, w):  # pragma: no cover - compiled
         ndotl = (toward[2, c] - p * toward[0, c] - q * toward[1, c]) / norm
         ndoth = min(max((half[2, c] - p * half[0, c] - q * half[1, c]) / norm, f0), f1)
         cos = ndotl if ndotl > f0 else f0
-        inv_u = f1 / (ndoth * ndoth * (a2 - f1) + f1)
-        lobe = a2 / pi * inv_u * inv_u * (norm / np.float32(4))
+        if beckmann:
+            dist = _beckmann(ndoth, a2)[0]
+        else:
+            inv_u = f1 / (ndoth * ndoth * (a2 - f1) + f1)
+            dist = a2 / pi * inv_u * inv_u
+        lobe = dist * (norm / np.float32(4))
         r = rho * cos + k * lobe + floor - y[c]
         cost += w[c] * r * r
     return cost
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _system(theta, toward, half, y, w, jtj, grad):  # pragma: no cover - compiled
+def _system(theta, toward, half, y, w, beckmann, jtj, grad):  # pragma: no cover - compiled
     """Fill ``jtj (6, 6)`` and ``grad (6,)`` with ``J^T W J`` and ``J^T W r`` of one pixel's
     residuals ``r = model - y`` at ``theta (6,)`` (float32 sums, as NumPy's)."""
     f0, f1, pi = np.float32(0.0), np.float32(1.0), np.float32(np.pi)
@@ -69,20 +90,23 @@ def _system(theta, toward, half, y, w, jtj, grad):  # pragma: no cover - compile
         ndoth = min(max((half[2, c] - p * half[0, c] - q * half[1, c]) / norm, f0), f1)
         lit = ndotl > f0
         cos = ndotl if lit else f0
-        inv_u = f1 / (ndoth * ndoth * (a2 - f1) + f1)
-        dist = a2 / pi * inv_u * inv_u
+        if beckmann:
+            dist, dd_dc, dd_dl = _beckmann(ndoth, a2)
+        else:
+            inv_u = f1 / (ndoth * ndoth * (a2 - f1) + f1)
+            dist = a2 / pi * inv_u * inv_u
+            dd_dc = np.float32(-4) * (a2 - f1) * ndoth * inv_u * dist
+            dd_dl = np.float32(2) * dist * (f1 - np.float32(2) * a2 * ndoth * ndoth * inv_u)
         lobe = dist * (norm / np.float32(4))
         r = rho * cos + k * lobe + floor - y[c]
         wc = w[c]
-        dd_dc = np.float32(-4) * (a2 - f1) * ndoth * inv_u * dist
         dcos = (-toward[0, c] - ndotl * p / norm) / norm if lit else f0
         dc = (-half[0, c] - ndoth * p / norm) / norm
         j0 = rho * dcos + k * ((dd_dc * dc * norm + dist * p / norm) / np.float32(4))
         dcos = (-toward[1, c] - ndotl * q / norm) / norm if lit else f0
         dc = (-half[1, c] - ndoth * q / norm) / norm
         j1 = rho * dcos + k * ((dd_dc * dc * norm + dist * q / norm) / np.float32(4))
-        j4 = k * (np.float32(2) * dist * (f1 - np.float32(2) * a2 * ndoth * ndoth * inv_u)) * (
-            norm / np.float32(4))
+        j4 = k * dd_dl * (norm / np.float32(4))
         w0, w1, w2, w3, w4 = wc * j0, wc * j1, wc * cos, wc * lobe, wc * j4
         g0 += w0 * r
         g1 += w1 * r
@@ -169,23 +193,24 @@ def _clip(theta):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)  # nogil: surface.fit_image runs blocks on threads
-def levenberg_marquardt(theta, toward, half, y, w, n_iter, tol):  # pragma: no cover - compiled
+def levenberg_marquardt(theta, toward, half, y, w, beckmann, n_iter,
+                        tol):  # pragma: no cover - compiled
     """:func:`ltmstore.solve.physical.levenberg_marquardt` of pixels ``theta (n, 6)`` (float64,
     updated in place) at far lights ``toward``, ``half (3, M)`` (float32) with values and
-    weights ``y``, ``w (n, M)`` (float32): at most ``n_iter`` steps, fewer where a step lowers
-    the pixel's cost by at most ``tol`` times it or the damping passes :data:`DAMPING_MAX`.
-    Returns each pixel's final cost ``(n,)``."""
+    weights ``y``, ``w (n, M)`` (float32), the lobe GGX or ``beckmann`` (bool): at most
+    ``n_iter`` steps, fewer where a step lowers the pixel's cost by at most ``tol`` times it or
+    the damping passes :data:`DAMPING_MAX`. Returns each pixel's final cost ``(n,)``."""
     costs = np.empty(len(theta))
     jtj, grad = np.empty((6, 6)), np.empty(6)
     system, rhs, step, trial = np.empty((6, 6)), np.empty(6), np.empty(6), np.empty(6)
     for i in range(len(theta)):
         _clip(theta[i])
-        cost = _cost(theta[i], toward, half, y[i], w[i])
+        cost = _cost(theta[i], toward, half, y[i], w[i], beckmann)
         lam = 1e-2
         moved = True  # the normal equations are those of theta[i] until it moves
         for _ in range(n_iter):
             if moved:
-                _system(theta[i], toward, half, y[i], w[i], jtj, grad)
+                _system(theta[i], toward, half, y[i], w[i], beckmann, jtj, grad)
             for a in range(6):
                 for b in range(6):
                     system[a, b] = jtj[a, b]
@@ -197,7 +222,7 @@ def levenberg_marquardt(theta, toward, half, y, w, n_iter, tol):  # pragma: no c
                 trial[a] = theta[i, a] + step[a]
                 finite = finite and np.isfinite(step[a])
             _clip(trial)
-            trial_cost = _cost(trial, toward, half, y[i], w[i])
+            trial_cost = _cost(trial, toward, half, y[i], w[i], beckmann)
             moved = finite and trial_cost < cost
             if moved:
                 theta[i, :] = trial
@@ -223,4 +248,4 @@ def warm_up() -> None:
     lights = np.ones((3, 2), dtype=np.float32)
     lights.flags.writeable = False  # as physical.far_lights' (broadcast) rows: one signature
     values = np.ones((1, 2), dtype=np.float32)
-    levenberg_marquardt(theta, lights, lights, values, values, 1, 0.0)
+    levenberg_marquardt(theta, lights, lights, values, values, False, 1, 0.0)

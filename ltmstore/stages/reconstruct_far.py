@@ -51,7 +51,7 @@ from ltmstore.core.dims import EXPECTED_ERROR, FRAMES, LTM, LUMA, UNSUPPORTED, L
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import DISK, FAR, coordinate_attrs, disk_to_direction
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
-from ltmstore.solve import Geometry
+from ltmstore.solve import Geometry, physical
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
 from ltmstore.stages import surface as sf
 from ltmstore.stages.plan import plan_tiles, write_method_map
@@ -201,7 +201,8 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     With ``method="physical"`` the surface is fitted to the whole image and mixed with nothing.
     With ``auto``, held-out lights of a sample of the pixels score ``classic`` (the image's
     leave-one-out choice, the surface's partner in a blend), every other model of ``models``
-    and the surface variants (:func:`~ltmstore.stages.surface.cross_validated`): the best
+    and the surface variants (:func:`~ltmstore.stages.surface.cross_validated`, the lobe's
+    distribution chosen first, :func:`~ltmstore.stages.surface.choose_lobe`): the best
     classic model is the image's, and the surface is fitted only where it lowers that model's
     held-out error by :data:`~ltmstore.stages.surface.MARGIN`; where it does not, the fit of
     every pixel is skipped and the time it would have taken (estimated from the choice's own
@@ -215,9 +216,11 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     rgb = sf.frames_rgb(group, valid, luma)  # luma: the valid frames, already read
     flat = rgb.reshape(len(rgb), -1, 3)
     sample = np.sort(np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS])
-    exposure, weight = False, 1.0
+    exposure, weight, lobe = False, 1.0, "ggx"
     if method == "auto":
-        scores = sf.cross_validated(flat[:, sample], train, classic, classics=models)
+        lobe, timings["surface_lobe_loo_mse"] = sf.choose_lobe(flat[:, sample], train)
+        timings["surface_lobe"] = lobe
+        scores = sf.cross_validated(flat[:, sample], train, classic, classics=models, lobe=lobe)
         timings["surface_choice_s"] = time.perf_counter() - start
         best = sf.best_classic(scores, classic, models, len(train))
         key = None if best == classic else best.name
@@ -227,22 +230,24 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
                if isinstance(k, tuple)}}
         surface = sf.choose_surface(scores, key)
         if surface is None:
-            # the choice fitted 2 FOLDS surfaces to the sample (3/4 of the lights each)
-            per_pixel = timings["surface_choice_s"] / (2 * sf.FOLDS * len(sample))
+            # the choice fitted a surface of each lobe to the sample, and 2 FOLDS more (3/4 of
+            # the lights each)
+            fits = 2 * sf.FOLDS + len(physical.LOBES)
+            per_pixel = timings["surface_choice_s"] / (fits * len(sample))
             timings["surface_skipped_s"] = per_pixel * flat.shape[1]
             return best, None
         exposure, weight = surface
     gain = np.ones(len(train), dtype=np.float32)
     if exposure:
-        gain[:] = sf.exposures(flat[:, sample], train)
+        gain[:] = sf.exposures(flat[:, sample], train, lobe=lobe)
         rgb /= gain[:, None, None, None]
         _write_exposure(group, valid, gain)
-    theta = sf.fit_image(rgb, train, workers=min(2, os.cpu_count() or 1))
-    sf.write_surface(group, theta)
+    theta = sf.fit_image(rgb, train, lobe, workers=min(2, os.cpu_count() or 1))
+    sf.write_surface(group, theta, lobe)
     encoded = linear_to_srgb((flat[:, sample] @ LUMA).astype(np.float32))
-    smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train)
+    smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train, lobe)
     timings["surface_s"] = time.perf_counter() - start
-    return classic, (theta, sf.Blend(smoother, classic, weight), gain)
+    return classic, (theta, sf.Blend(smoother, classic, weight, lobe), gain)
 
 
 def _load_kernels() -> None:
