@@ -93,11 +93,11 @@ def _ramp(value: np.ndarray, edges: tuple[float, float]) -> np.ndarray:
 
 
 def _block_support(normal: np.ndarray, roughness: np.ndarray, directions: np.ndarray,
-                   lobe: str) -> np.ndarray:
+                   distribution: str) -> np.ndarray:
     """:func:`lobe_support` of the pixels ``normal (n, 3)``, ``roughness (n,)`` (a lobe of the
-    distribution ``lobe``)."""
+    ``distribution``, one of ``physical.LOBES``)."""
     n = len(normal)
-    lights = physical.far_lights(directions, n, lobe)
+    lights = physical.far_lights(directions, n, distribution)
     zeros, ones = np.zeros(n), np.ones(n)
 
     def term(albedo: np.ndarray, specular: np.ndarray) -> np.ndarray:
@@ -148,9 +148,10 @@ def lobe_support(ds) -> np.ndarray:
     directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     normal = ds[sf.NORMAL].values.reshape(-1, 3).astype(np.float64)
     roughness = ds[sf.ROUGHNESS].values.ravel().astype(np.float64)
+    distribution = sf.surface_lobe(ds)
     support = np.concatenate([
         _block_support(normal[i:i + sf.BLOCK], roughness[i:i + sf.BLOCK], directions,
-                       sf.surface_lobe(ds))
+                       distribution)
         for i in range(0, len(normal), sf.BLOCK)])
     return np.nan_to_num(support).reshape(shape)
 
