@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from pipeline_helpers import run_ltm
 
+from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store, store_summary
 from ltmstore.stages.relight import disk_light, relight
 
@@ -96,6 +97,22 @@ def test_relight_from_the_factors_matches_the_dense_store(factored_store, small_
     assert snr_db(expected, found) > 43.2  # measured 43.73 dB (recorded ltm: 41.81 dB)
     area = disk_light(open_store(store)["ltm"], (0.0, 0.0), 0.08)
     assert snr_db(relight(small_store, area).values, relight(store, area).values) > 62.0  # 62.8
+
+
+def test_an_opened_store_decodes_its_weights_once(factored_store, tmp_path):
+    """Relit light after light, an opened store reads its weights from disk once: with the
+    weight files gone it relights the same from memory, while the store opened anew cannot."""
+    store = shutil.copytree(factored_store[0], tmp_path / "store.zarr")
+    ds = open_store(store)
+    first = relight(ds, [LIGHTS[0]]).values
+    kept = ds.encoding["kept_weights"]["ltm"]
+    assert kept.nbytes == ds["ltm_weights"].size * 4  # every block, float32
+    shutil.rmtree(store / "ltm_weights" / "c")
+    np.testing.assert_array_equal(relight(ds, [LIGHTS[0]]).values, first)
+    np.testing.assert_array_equal(relight(ds, [LIGHTS[1]]).values,
+                                  relight(factored_store[0], [LIGHTS[1]]).values)
+    with pytest.raises(LtmError, match="ltm_weights/c/0 is missing"):
+        relight(open_store(store), [LIGHTS[0]])
 
 
 def test_a_damaged_factor_chunk_is_refused_by_check_and_relight(factored_store, tmp_path):
@@ -251,3 +268,9 @@ def test_packed_factors_keep_each_tile_at_its_own_rank(tmp_path, monkeypatch):
     np.testing.assert_allclose(lit, np.einsum("yxrs,lrs->lyx", dense, pattern),
                                rtol=1e-4, atol=1e-4)
     assert not lit[2].any()
+    spans = [packing.span(tiles)[0] for tiles in packing.blocks()]
+    kept = factored.Kept(weights, budget=4 * max(s.stop - s.start for s in spans))  # 1-3 kept
+    for _ in range(2):
+        np.testing.assert_array_equal(factored.relight(kept, basis, ranks, pattern, tile)
+                                      .compute(), lit)
+    assert 0 < kept.nbytes <= kept.budget and len(kept.blocks) < 4

@@ -30,6 +30,9 @@ the weights once and the basis rows of the light's cells only.
 
 from __future__ import annotations
 
+import functools
+import threading
+
 import numpy as np
 
 WEIGHTS, BASIS, RANKS = "_weights", "_basis", "_ranks"
@@ -43,6 +46,7 @@ MAX_DB = 60.0  # no tile is kept closer than this to its dense LTM (float16 roun
 BLOCK_TILES = 16  # tiles per side of a block (512 x 512 pixels): one Dask task of a view
 WEIGHT_CHUNK = 1 << 20  # packed weights per stored chunk (4 MiB of float32)
 ROW_CHUNK = 4096  # basis rows per stored chunk (of one cell; a shard holds every cell)
+KEPT_BYTES = 1 << 30  # decoded weights an opened store keeps in memory (a 4K LTM's: 0.46 GB)
 
 
 def factored_by(stages: dict) -> str | None:
@@ -338,15 +342,25 @@ class Packed:
             self.box = tuple(slice(lo, hi + 1) for lo, hi in
                              zip(used.min(0), used.max(0), strict=True)) if len(used) else None
 
+    def __dask_tokenize__(self):
+        return (type(self).__name__, self.weights, self.basis, self.packing.ranks,
+                self.packing.image, self.packing.tile, self.pattern)
+
+    @functools.cached_property
+    def _lit(self) -> np.ndarray:
+        """``(factor_row, lights)`` every basis row under each light of the pattern: the
+        cells with a weight read once for all blocks."""
+        if self.box is None:
+            return np.zeros((self.basis.shape[0], len(self.pattern)), np.float32)
+        basis = np.asarray(self.basis[(slice(None), *self.box)], np.float32)
+        weights = self.pattern[(slice(None), *self.box)]
+        return np.tensordot(basis, weights, axes=((1, 2), (1, 2)))
+
     def _columns(self, rows: slice, key: tuple[slice, ...]) -> np.ndarray:
         """``(k, ...)`` each basis row of a block as the output's trailing axes at ``key``."""
         if self.pattern is None:
             return np.asarray(self.basis[rows, key[0], key[1]], np.float32)
-        if self.box is None:
-            return np.zeros((rows.stop - rows.start, len(self.pattern)), np.float32)[:, key[0]]
-        basis = np.asarray(self.basis[(rows, *self.box)], np.float32)
-        weights = self.pattern[(slice(None), *self.box)]
-        return np.tensordot(basis, weights, axes=((1, 2), (1, 2)))[:, key[0]]
+        return self._lit[rows, key[0]]
 
     def __getitem__(self, key: tuple[slice, ...]) -> np.ndarray:
         ys, xs = (range(*k.indices(n)) for k, n in zip(key[:2], self.shape[:2], strict=True))
@@ -369,10 +383,11 @@ class Packed:
                 yy = slice(max(y0, ys.start), min(y0 + part.shape[0], ys.stop))
                 xx = slice(max(x0, xs.start), min(x0 + part.shape[1], xs.stop))
                 if yy.start < yy.stop and xx.start < xx.stop:
+                    product = part[yy.start - y0:yy.stop - y0, xx.start - x0:xx.stop - x0] \
+                        @ columns[rows].reshape(part.shape[2], -1)
                     out[yy.start - ys.start:yy.stop - ys.start,
-                        xx.start - xs.start:xx.stop - xs.start] = np.tensordot(
-                            part[yy.start - y0:yy.stop - y0, xx.start - x0:xx.stop - x0],
-                            columns[rows], axes=1)
+                        xx.start - xs.start:xx.stop - xs.start] = product.reshape(
+                            *product.shape[:2], *tail)
         return out
 
 
@@ -434,6 +449,41 @@ def relight(weights, basis, ranks: np.ndarray, pattern: np.ndarray, tile: int):
     packing = Packing(ranks, tuple(basis.attrs["image"]), tile)
     packed = Packed(weights, basis, packing, pattern)
     return _lazy(packed, (len(packed.pattern),)).transpose(2, 0, 1)
+
+
+class Kept:
+    """A stored array whose blocks, once read, stay decoded in memory (up to ``budget`` bytes,
+    kept as first read: a store opened once relights light after light without decompressing
+    its weights again). Read by slices along its one axis, as :class:`Packed` reads weights.
+
+    Parameters
+    ----------
+    array : zarr.Array
+        ``(n,)`` the stored array.
+    budget : int
+        Bytes of decoded blocks to keep; blocks read past it are read each time.
+    """
+
+    def __init__(self, array, budget: int = KEPT_BYTES) -> None:
+        self.array, self.budget = array, budget
+        self.shape, self.dtype = array.shape, array.dtype
+        self.blocks: dict[tuple[int, int], np.ndarray] = {}
+        self.nbytes = 0
+        self.lock = threading.Lock()
+
+    def __dask_tokenize__(self):
+        return type(self).__name__, self.array  # the stored array's token, not the blocks'
+
+    def __getitem__(self, key: slice) -> np.ndarray:
+        span = key.indices(self.shape[0])[:2]
+        block = self.blocks.get(span)
+        if block is None:
+            block = np.asarray(self.array[key])
+            with self.lock:
+                if span not in self.blocks and self.nbytes + block.nbytes <= self.budget:
+                    self.blocks[span] = block
+                    self.nbytes += block.nbytes
+        return block
 
 
 class Eager:

@@ -456,11 +456,13 @@ def _derive_factored(ds: xr.Dataset, group: zarr.Group) -> xr.Dataset:
     as its lazy product ``(y, x, r, s)``, and its light-major view (one cell per chunk)."""
     import xarray as xr
 
-    for name in LTM_VARIABLES[:3]:
+    names = [name for name in LTM_VARIABLES[:3] if name not in ds and all(
+        f(name) in ds for f in (factored.weights_name, factored.basis_name, factored.ranks_name))]
+    for name in names:
         weights, basis, ranks = (f(name) for f in (factored.weights_name, factored.basis_name,
                                                    factored.ranks_name))
-        if name in ds or any(n not in ds for n in (weights, basis, ranks)):
-            continue
+        ds.encoding.setdefault("kept_weights", {})[name] = factored.Kept(  # for relighting
+            group[weights], factored.KEPT_BYTES // len(names))
         tile = int(group[basis].attrs["tile"])
         coords = {k: ds[k] for k in ("y", "x", "r", "s") if k in ds.coords}
         attrs = {k: v for k, v in ds[basis].attrs.items() if k not in factored.LAYOUT_ATTRS}

@@ -405,7 +405,10 @@ def _factored_dot(ds: xr.Dataset, name: str, ltm: xr.DataArray, pattern: xr.Data
         return xr.dot(ltm, pattern, dim=["r", "s"])
     full = np.zeros((pattern.sizes[LIGHT], *basis.shape[1:]), np.float32)
     full[(slice(None), box["r"], box["s"])] = pattern.transpose(LIGHT, "r", "s").values
-    image = factored.relight(group[factored.weights_name(name)], basis,
+    weights = ds.encoding.get("kept_weights", {}).get(name)  # decoded once per opened store
+    if weights is None:
+        weights = group[factored.weights_name(name)]
+    image = factored.relight(weights, basis,
                              np.asarray(group[factored.ranks_name(name)][...]), full,
                              int(basis.attrs["tile"]))
     coords = {k: c for k, c in ltm.coords.items() if set(c.dims) <= {"y", "x"}}
