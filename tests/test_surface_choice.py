@@ -9,8 +9,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import zarr
 
 from ltmstore.cli import main
+from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.solve import physical
@@ -245,3 +247,6 @@ def test_the_lobe_is_the_captures_own(tmp_path, lobe):
     model = {x: rms(sf.model_encoded(sf.fit_pixels(photos, dome(), x), between, color=True,
                                      lobe=x)) for x in physical.LOBES}
     assert model[lobe] < 0.95 * model[other], model  # measured 0.91 (GGX), 0.65 (Beckmann)
+    zarr.open_group(str(store), mode="r+")["roughness"].attrs["lobe"] = other  # the two disagree
+    with pytest.raises(LtmError, match=f"names the {lobe} lobe, its roughness the {other}"):
+        relight(open_store(store), directions=between)

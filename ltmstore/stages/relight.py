@@ -488,6 +488,11 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
     weights = {c: xr.DataArray(m.weights(train, dirs).astype(np.float32), dims=(LIGHT, T))
                for c, m in models.items()}
     physical = [c for c, m in models.items() if isinstance(m, surface.Blend)]
+    for c in physical:  # the lobe is written twice: the method's name and the surface's own
+        if models[c].lobe != surface.surface_lobe(ds):
+            raise LtmError(f"the far-light store's method {names[c]!r} names the "
+                           f"{models[c].lobe} lobe, its roughness the "
+                           f"{surface.surface_lobe(ds)} lobe; run `ltm reconstruct` again")
 
     def apply(encoded: xr.DataArray) -> xr.DataArray:
         """The models on sRGB-encoded frames, decoded to linear light."""
