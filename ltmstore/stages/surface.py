@@ -349,11 +349,14 @@ def choose_lobe(rgb: np.ndarray, train: np.ndarray) -> tuple[str, dict[str, floa
     light, and scored by its residual's leave-one-light-out error (:func:`choose_smoother`'s);
     Beckmann only where it lowers GGX's by :data:`LOBE_MARGIN`."""
     encoded = linear_to_srgb((rgb @ LUMA).astype(np.float32))
-    scores = {}
-    for lobe in physical.LOBES:
+
+    def score(lobe: str) -> float:
         residual = encoded - model_encoded(fit_pixels(rgb, train, lobe), train, color=False,
                                            lobe=lobe)
-        scores[lobe] = min(choose(residual, train, rbf_models())[1].values())
+        return min(choose(residual, train, rbf_models())[1].values())
+
+    with ThreadPoolExecutor(max_workers=len(physical.LOBES)) as pool:  # the fits release the GIL
+        scores = dict(zip(physical.LOBES, pool.map(score, physical.LOBES), strict=True))
     better = scores["beckmann"] < (1 - LOBE_MARGIN) * scores["ggx"]
     return "beckmann" if better else "ggx", scores
 
