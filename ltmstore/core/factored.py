@@ -479,6 +479,7 @@ class Kept:
         block = self.blocks.get(span)
         if block is None:
             block = np.asarray(self.array[key])
+            block.flags.writeable = False  # shared by every later read
             with self.lock:
                 if span not in self.blocks and self.nbytes + block.nbytes <= self.budget:
                     self.blocks[span] = block
