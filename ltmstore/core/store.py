@@ -456,11 +456,11 @@ def _derive_factored(ds: xr.Dataset, group: zarr.Group) -> xr.Dataset:
     as its lazy product ``(y, x, r, s)``, and its light-major view (one cell per chunk)."""
     import xarray as xr
 
-    names = [name for name in LTM_VARIABLES[:3] if name not in ds and all(
-        f(name) in ds for f in (factored.weights_name, factored.basis_name, factored.ranks_name))]
+    parts = {name: tuple(f(name) for f in (factored.weights_name, factored.basis_name,
+                                           factored.ranks_name)) for name in LTM_VARIABLES[:3]}
+    names = [n for n, part in parts.items() if n not in ds and all(v in ds for v in part)]
     for name in names:
-        weights, basis, ranks = (f(name) for f in (factored.weights_name, factored.basis_name,
-                                                   factored.ranks_name))
+        weights, basis, ranks = parts[name]
         ds.encoding.setdefault("kept_weights", {})[name] = factored.Kept(  # for relighting
             group[weights], factored.KEPT_BYTES // len(names))
         tile = int(group[basis].attrs["tile"])
