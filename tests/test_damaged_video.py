@@ -5,9 +5,14 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
-from ingest_helpers import N, make_acquisition
+from ingest_helpers import N, frames_rgb8, make_acquisition
 from pipeline_helpers import run_ltm
+
+from ltmstore.capture.video import ThreadedDecodeUnclean, VideoReader, threaded_first
+from ltmstore.core.errors import LtmError
+from ltmstore.synthetic.writer import write_h264, write_video
 
 
 def flip(path, start: int, count: int = 16) -> None:
@@ -53,3 +58,40 @@ def test_a_damaged_header_does_not_hide_a_truncation(tmp_path):
     proc = run_ltm("ingest", acq, tmp_path / "b.zarr", "--allow-dropped-frames")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["n_frames"] < N
+
+
+@pytest.mark.parametrize("video", ["video.mkv", "video.mp4", "video.h264.mkv"])
+def test_threaded_decoding_gives_the_serial_frames_and_stops_at_damage(tmp_path, video):
+    """FFmpeg's frame threads decode the same pixels; at damage, which their messages cannot
+    tie to a frame, the threaded reader gives up and :func:`threaded_first` decodes on one
+    thread, which names the frame."""
+    path = tmp_path / video
+    frames = frames_rgb8("srgb", N)
+    if video.endswith(".h264.mkv"):
+        assert write_h264(path, iter(frames), bitrate=2_000_000) == N
+    else:
+        assert write_video(path, frames) == N
+    serial, threaded = (read_all(path, threaded=t) for t in (False, True))
+    assert len(serial) == N and all(np.array_equal(a, b) for a, b in zip(serial, threaded,
+                                                                        strict=True))
+    if video.endswith(".h264.mkv"):  # H.264 has no checksum: flipped bytes may pass unseen
+        path.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
+    else:
+        flip(path, path.stat().st_size // 2)
+    with pytest.raises(ThreadedDecodeUnclean):
+        read_all(path, threaded=True)
+    runs = []
+
+    def run(threaded: bool) -> list:
+        runs.append(threaded)
+        return read_all(path, threaded=threaded)
+
+    with pytest.raises(LtmError, match=r"cannot be decoded: (.*frame \d+ is damaged|it ends "
+                                       r"after \d+ of the 60 frames)"):
+        threaded_first(run)
+    assert runs == [True, False]
+
+
+def read_all(path, *, threaded: bool) -> list:
+    with VideoReader(path, threaded=threaded) as reader:
+        return [rgb for _, rgb in reader.frames()]

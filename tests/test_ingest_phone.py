@@ -291,3 +291,35 @@ def test_a_drift_the_data_cannot_measure_is_not_taken_as_locked():
     assert gains is not None and record["corrected"] and "exposure_locked" not in record
     with pytest.raises(LtmError, match="factor"):
         _drift_decision(estimate(1.0, 0.01), exposure_locked=True)
+
+
+def test_a_large_frame_is_scanned_on_a_quarter_of_its_pixels(tmp_path):
+    """Frames of HALF_SCAN_MIN_SIDE pixels a side and more are scanned at every second pixel of
+    every second row: each block's mean differs from the whole frame's by a nearly fixed factor
+    (which the drift model's static scene takes up), the same from frame to frame to a small
+    fraction of the 2 % misfit the drift check allows."""
+    import cv2
+
+    from ltmstore.capture.video import VideoReader
+    from ltmstore.core.transfer import encode, linearise, transfer_lut
+    from ltmstore.stages.phone import BLOCK_GRID, HALF_SCAN_MIN_SIDE, scan_video
+    from ltmstore.synthetic.writer import write_h264
+
+    side = HALF_SCAN_MIN_SIDE
+    rng = np.random.default_rng(0)
+    paint = cv2.GaussianBlur(rng.uniform(0.1, 1, (side, side, 3)).astype(np.float32), (0, 0), 1)
+    ramp = np.linspace(0, 1, side, dtype=np.float32)
+    frames = [encode(paint * (0.2 + 0.6 * np.abs(ramp[:, None, None] - a)), "srgb")
+              for a in np.linspace(0, 1, 8)]
+    path = tmp_path / "large.mp4"
+    write_h264(path, iter(frames), bitrate=40_000_000)
+    lut = transfer_lut("srgb", bits=8)
+    scan = scan_video(path, lut, allow_dropped=False)
+    with VideoReader(path) as video:
+        whole = np.array([cv2.resize(linearise(rgb, lut), (BLOCK_GRID, BLOCK_GRID),
+                                     interpolation=cv2.INTER_AREA).reshape(-1, 3)
+                          for _, rgb in video.frames()])
+    ratio = np.log(scan.blocks / whole)
+    assert 1e-4 < np.abs(ratio).max() < 0.003  # measured 0.0022: a quarter of the pixels
+    assert ratio.std(axis=0).max() < 0.0013  # measured 0.00099
+    assert len(scan.head) == len(frames) and scan.head[0].shape == (side, side, 3)

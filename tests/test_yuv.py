@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ltmstore.capture.video import VideoReader
-from ltmstore.capture.yuv import frame_to_rgb, ycbcr_matrix
+from ltmstore.capture.yuv import frame_to_rgb, half_rgb, ycbcr_matrix
 from ltmstore.core.dims import LUMA
 from ltmstore.core.transfer import encode, linearise, transfer_lut
 from ltmstore.synthetic.render import iter_frames
@@ -101,3 +101,22 @@ def test_a_frame_in_another_format_keeps_ffmpegs_conversion():
     semi_planar = frame.reformat(format="nv12")
     np.testing.assert_array_equal(frame_to_rgb(semi_planar),
                                   semi_planar.to_ndarray(format="rgb24"))
+
+
+@pytest.mark.parametrize("fmt", ["yuv444p", "yuv420p", "rgb24"])
+def test_half_rgb_is_the_frame_at_every_second_pixel(fmt):
+    """Where chroma is sampled at every pixel (4:4:4, RGB) it is exactly the full conversion's
+    even pixels; in 4:2:0 each pixel takes its 2 x 2 block's chroma, so inside a patch of one
+    colour it is the full conversion's value there."""
+    rng = np.random.default_rng(1)
+    image = np.repeat(np.repeat(PATCHES[None], 16, 0), 16, 1)  # 16 x 64, patches 16 wide
+    image = np.ascontiguousarray(np.concatenate([image, rng.integers(0, 256, image.shape,
+                                                                     dtype=np.uint8)]))
+    frame = av.VideoFrame.from_ndarray(image, format="rgb24")
+    if fmt != "rgb24":
+        frame = frame.reformat(format=fmt)
+    half, full = half_rgb(frame), frame_to_rgb(frame)[::2, ::2]
+    assert half.shape == full.shape == (16, 32, 3)
+    if fmt == "yuv420p":
+        half, full = half[2:6, 1:7], full[2:6, 1:7]  # inside the first patch
+    np.testing.assert_array_equal(half, full)

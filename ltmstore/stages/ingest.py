@@ -45,7 +45,7 @@ from tqdm.auto import tqdm
 from ltmstore.capture.acquisition import Acquisition, load_acquisition, load_poses
 from ltmstore.capture.register import ViewRig
 from ltmstore.capture.undistort import Undistorter
-from ltmstore.capture.video import VideoReader
+from ltmstore.capture.video import VideoReader, threaded_first
 from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import begin_stage, new_store
@@ -142,7 +142,24 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     corrections = _corrections(acq, rig, light, allow_dropped=allow_dropped,
                                exposure_locked=exposure_locked)
     scanned = time.perf_counter()
-    with VideoReader(acq.video, allow_dropped=allow_dropped) as video, new_store(
+    write = partial(_write_frames, acq, store, rig, light, corrections, overwrite=overwrite,
+                    progress=progress, chunk_frames=chunk_frames, z_tolerance=z_tolerance,
+                    allow_dropped=allow_dropped, keep_chroma=keep_chroma, hashes=hashes,
+                    times=(started, hashed, scanned))
+    record = threaded_first(write)
+    return {**record, "store": str(store)}
+
+
+def _write_frames(acq: Acquisition, store: str | os.PathLike, rig: ViewRig | None,
+                  light: partial, corrections: Corrections | None, threaded: bool, *,
+                  overwrite: bool, progress: bool, chunk_frames: int, z_tolerance: float,
+                  allow_dropped: bool, keep_chroma: bool, hashes: dict[str, str],
+                  times: tuple[float, float, float]) -> dict:
+    """The pass that writes the store: every frame decoded, corrected and added; the stage
+    record (``times``: when :func:`ingest` started, had hashed and had scanned)."""
+    started, hashed, scanned = times
+    with VideoReader(acq.video, allow_dropped=allow_dropped,
+                     threaded=threaded) as video, new_store(
             store, overwrite=overwrite, inputs=(acq.folder, acq.video, acq.poses)) as group:
         begin_stage(group, STAGE)
         sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames, rig=rig)
@@ -182,7 +199,7 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         record = finish_ingest(group, sink, t, _judge_occlusion(lights, sink, rig),
                                acquisition=provenance, info=info, started=started,
                                keep_chroma=keep_chroma)
-    return {**record, "store": str(store)}
+    return record
 
 
 def _corrections(acq: Acquisition, rig: ViewRig | None, light: partial, *,
