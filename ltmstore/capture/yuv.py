@@ -56,9 +56,7 @@ def frame_to_rgb(frame) -> np.ndarray:
     height, width = luma.shape
     if cb.shape != luma.shape:
         cb, cr = (cv2.resize(c, (width, height), interpolation=cv2.INTER_CUBIC) for c in (cb, cr))
-    matrix = ycbcr_matrix(*WEIGHTS.get(frame.colorspace, UNTAGGED),
-                          full=full or frame.color_range == FULL_RANGE)
-    return cv2.transform(cv2.merge([luma, cb, cr]), matrix)
+    return cv2.transform(cv2.merge([luma, cb, cr]), _matrix(frame, full))
 
 
 def half_rgb(frame) -> np.ndarray:
@@ -74,10 +72,15 @@ def half_rgb(frame) -> np.ndarray:
     height, width = luma.shape
     cb, cr = (c[:: 2 if c.shape[0] == height else 1, :: 2 if c.shape[1] == width else 1]
               for c in (cb, cr))
-    matrix = ycbcr_matrix(*WEIGHTS.get(frame.colorspace, UNTAGGED),
-                          full=full or frame.color_range == FULL_RANGE)
     planes = [np.ascontiguousarray(p) for p in (luma[::2, ::2], cb, cr)]
-    return cv2.transform(cv2.merge(planes), matrix)
+    return cv2.transform(cv2.merge(planes), _matrix(frame, full))
+
+
+def _matrix(frame, full: bool) -> np.ndarray:
+    """:func:`ycbcr_matrix` of a planar frame: its ``colorspace`` tag's weights, and full swing
+    where its format (``full``) or ``color_range`` tag says so."""
+    return ycbcr_matrix(*WEIGHTS.get(frame.colorspace, UNTAGGED),
+                        full=full or frame.color_range == FULL_RANGE)
 
 
 @functools.cache

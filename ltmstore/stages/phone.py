@@ -99,15 +99,16 @@ def _scan(path: Path, lut: np.ndarray, threaded: bool, *, allow_dropped: bool) -
             if keep is None:
                 size = 3 * frame.width * frame.height
                 keep = max(1, min(int(HEAD_S * video.fps), HEAD_BYTES // max(size, 1)))
-            coarse = (half_rgb(frame) if min(frame.width, frame.height) >= HALF_SCAN_MIN_SIDE
-                      else frame_to_rgb(frame))
-            linear = linearise(coarse, lut)
+            large = min(frame.width, frame.height) >= HALF_SCAN_MIN_SIDE
+            kept = len(head) < keep and i == len(head)
+            rgb = frame_to_rgb(frame) if kept or not large else None
+            linear = linearise(half_rgb(frame) if large else rgb, lut)
             small = cv2.resize(linear, (BLOCK_GRID, BLOCK_GRID), interpolation=cv2.INTER_AREA)
             index.append(i)
             blocks.append(small.reshape(-1, 3))
             brightness.append(float(rgb_to_ycbcr(small)[..., 0].mean()))
-            if len(head) < keep and i == len(head):
-                head.append(frame_to_rgb(frame))
+            if kept:
+                head.append(rgb)
         fps = video.fps
     return Scan(np.array(index), np.array(blocks, dtype=np.float64), np.array(brightness),
                 head, fps)
