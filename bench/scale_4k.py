@@ -216,6 +216,21 @@ def _run(folder: Path, plan_args: dict, exposure: float, run: dict, form: str,
         save()
     run["both_wall_s"] = round(run["ingest"]["wall_s"] + run["reconstruct"]["wall_s"], 1)
     record = st.stages(st.open_group(store, mode="r"))
+    run.update({"stage_records": {k: record.get(k) for k in ("ingest", "resample",
+                                                            "reconstruct", "compact")},
+                "store_bytes": store_bytes(store), "variable_bytes": _variable_bytes(store),
+                **score(store, plan_args, exposure)})
+    save()
+    run["relight_point_light"] = relight_cost(store, random_lights(PLANE.to_json(), 5))
+    run["relight_point_light_warm"] = warm_relight_cost(store,
+                                                        random_lights(PLANE.to_json(), 11))
+    run["load_average_1min_end"] = os.getloadavg()[0]
+    save()
+
+
+def score(store: Path, plan_args: dict, exposure: float) -> dict:
+    """SNR_Y of the store's LTM against the simulation's truth on the pixels ``[4::8, 4::8]``
+    (and SNR_RGB of a colour LTM), with the image and lattice shapes."""
     ds = open_store(store)
     ltm = ds[LTM]
     lights = [(r, s, PLANE.height) for r in ltm["r"].values for s in ltm["s"].values]
@@ -231,21 +246,13 @@ def _run(folder: Path, plan_args: dict, exposure: float, run: dict, form: str,
     truth_rgb = np.stack([frame[rows][:, cols] for frame in iter_frames(plan.scene, lights)],
                          axis=-2) * exposure  # (y, x, cell, colour)
     truth = (truth_rgb @ LUMA.astype(np.float32)).reshape(estimate.shape)
-    run.update({"image": list(ltm.shape[:2]), "lattice": list(ltm.shape[2:]),
-                "stage_records": {k: record.get(k) for k in ("ingest", "resample",
-                                                             "reconstruct", "compact")},
-                "store_bytes": store_bytes(store), "variable_bytes": _variable_bytes(store),
-                "snr_y_db_pixel_subset": snr_db(truth, estimate)})
+    out = {"image": list(ltm.shape[:2]), "lattice": list(ltm.shape[2:]),
+           "snr_y_db_pixel_subset": snr_db(truth, estimate)}
     if CHROMA_LTM["cb"] in ds:  # a colour LTM: its linear RGB against the rendered RGB
         rgb = np.stack(rgb_from_ycbcr(estimate, subset(CHROMA_LTM["cb"]),
                                       subset(CHROMA_LTM["cr"])), axis=-1)
-        run["snr_rgb_db_pixel_subset"] = snr_db(truth_rgb.reshape(rgb.shape), rgb)
-    save()
-    run["relight_point_light"] = relight_cost(store, random_lights(PLANE.to_json(), 5))
-    run["relight_point_light_warm"] = warm_relight_cost(store,
-                                                        random_lights(PLANE.to_json(), 11))
-    run["load_average_1min_end"] = os.getloadavg()[0]
-    save()
+        out["snr_rgb_db_pixel_subset"] = snr_db(truth_rgb.reshape(rgb.shape), rgb)
+    return out
 
 
 if __name__ == "__main__":

@@ -27,7 +27,8 @@ from ltmstore.judge.evaluate import at_cells, compare_stores
 from ltmstore.share.export import export
 from ltmstore.stages.compact import compact
 from ltmstore.stages.ingest import ingest
-from ltmstore.stages.reconstruct import reconstruct
+from ltmstore.stages.plan import plan_tiles
+from ltmstore.stages.reconstruct import reconstruct, resample_regions, tile_groups
 from ltmstore.stages.relight import relight
 
 TILE = 16
@@ -87,11 +88,34 @@ def stores(small_acquisition, tmp_path_factory):
 
 
 def test_reconstruct_tasks_do_not_grow_with_the_lattice(stores):
-    # Measured: [69, 9, 1] = 79 (resample, solve 4 tiles, the light-major copy in one band) on
-    # both lattices; the finiteness check counts chunks and builds no graph (it was 21 tasks).
+    # Measured: [1, 4, 1] (resample in one region, solve 4 tiles one per task, the light-major
+    # copy in one band) on both lattices; before the resample regions and the tile groups,
+    # [69, 9, 1]. The finiteness check counts chunks and builds no graph (it was 21 tasks).
     for n in LATTICES:
-        assert sum(stores[n][1]) <= 87, (n, stores[n][1])
+        assert sum(stores[n][1]) <= 6, (n, stores[n][1])
     assert stores[8][1] == stores[16][1]
+
+
+def test_a_4k_reconstruct_is_a_few_thousand_tasks():
+    """Issue 25 item 5: the 4K capture's reconstruct (3840 x 2160 px, 1,359 frames in chunks of
+    256 x 256 px, 32 x 32 px tiles) as a cluster's scheduler receives it: 510 resample tasks of
+    128 x 128 px, 2,040 solve tasks of 2 x 2 tiles (Dask's graph was 136,504 resample tasks and
+    16,320 solve tasks), each region and tile once; a resumed run groups only its tiles left."""
+    plan = plan_tiles((2160, 3840), (36, 36), tile=32)
+    regions = resample_regions(plan, (256, 256), 1359)
+    assert len(regions) == 510 and {(r.stop - r.start, c.stop - c.start)
+                                     for r, c in regions} == {(128, 128), (112, 128)}
+    covered = np.zeros(plan.image, dtype=int)
+    for where in regions:
+        covered[where] += 1
+    assert (covered == 1).all()
+    todo = np.ones(plan.grid, dtype=bool)
+    groups = tile_groups(todo)
+    assert len(groups) == 2040 and max(map(len, groups)) == 4
+    todo[::3] = False  # an interrupted run: a third of the rows done
+    left = tile_groups(todo)
+    assert sorted(t for g in left for t in g) == [tuple(t) for t in np.argwhere(todo)]
+    assert all(max(abs(a - b) for a, b in zip(g[0], t, strict=True)) <= 1 for g in left for t in g)
 
 
 def test_evaluate_tasks_follow_the_pixel_blocks(stores, small_acquisition):

@@ -2,6 +2,7 @@ from unittest.mock import patch
 
 import dask.array as da
 import numpy as np
+import zarr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -66,3 +67,30 @@ def test_path_length_skips_invalid_steps():
     r, s = np.array([0.0, 1.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0, 3.0])
     assert path_length(r, s) == 4.0
     assert path_length(r, s, valid=np.array([True, True, False, True])) == 1.0
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(1, 6), st.integers(1, 30), st.integers(0, 2**31 - 1), st.booleans(),
+       st.booleans())
+def test_a_region_resampled_from_the_store_is_bin_frames(n, nt, seed, long_video, channel):
+    """:func:`resample.resample_region` (a reconstruct task: its frames read from the store, in
+    one block or, ``long_video``, blocks of 3 frames whose sums add) writes the region's
+    samples as :func:`bin_frames`, of the luminance or of one chroma channel."""
+    rng = np.random.default_rng(seed)
+    lattice = Lattice.from_plane(PLANE, (n, n))
+    binning = bin_positions(lattice, (rng.uniform(-0.5, 4.5, nt), rng.uniform(-0.5, 2.5, nt)))
+    frames = rng.random((2, nt, 6, 5)).astype(np.float16)  # (channel, t, y, x)
+    stored = frames if channel else frames[1]
+    source = zarr.create_array(zarr.storage.MemoryStore(), shape=stored.shape,
+                               chunks=(1, 4, 4, 4)[-stored.ndim:], dtype=np.float16)
+    source[...] = stored
+    samples = zarr.create_array(zarr.storage.MemoryStore(), shape=(6, 5, n, n),
+                                chunks=(2, 2, n, n), dtype=np.float32, fill_value=-1.0)
+    where = (slice(2, 6), slice(0, 4))
+    with patch.object(resample, "REGION_FRAMES_BYTES", 4 * 16 * 3 if long_video else 2**20):
+        resample.resample_region(where, frames=source, samples=samples, cells=binning.cell,
+                                 count=binning.count.reshape(-1).astype(np.float32),
+                                 channel=1 if channel else None)
+    expected = bin_frames(da.from_array(frames[1].astype(np.float32)), binning).compute()
+    np.testing.assert_allclose(samples[where], expected[where], rtol=1e-6)
+    assert (samples[:2] == -1).all() and (samples[:, 4:] == -1).all()  # nothing outside

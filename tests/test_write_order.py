@@ -24,9 +24,7 @@ def test_a_tile_whose_data_write_fails_is_not_marked_done(tmp_path):
                               dtype=str, fill_value="")
     samples = np.full((2, 2, 4, 4), np.nan, dtype=np.float32)
     samples[..., ::2, ::2] = 1.0
-    block_info = {0: {"array-location": [(0, 2), (2, 4), (0, 4), (0, 4)],
-                      "chunk-location": (0, 1, 0, 0)}}
-    with pytest.raises(OSError, match="No space left"):
-        _solve_tile(samples, out={LTM: FullDisk(), TILES: marks}, method="cs", params={},
-                    geometry=Geometry.from_shape((4, 4)), auto=False, block_info=block_info)
+    with pytest.raises(OSError, match="No space left"):  # tile (0, 1): pixels (0, 2) on
+        _solve_tile(samples, (0, 1), (0, 2), (2, 4), out={LTM: FullDisk(), TILES: marks},
+                    method="cs", params={}, geometry=Geometry.from_shape((4, 4)), auto=False)
     assert (_read_marks(marks) == "").all()  # a resume solves the tile again

@@ -2,8 +2,11 @@
 
 Plan, then execute: a frozen :class:`TilePlan` fixes the pixel tiles (the solver's unit and the
 Zarr shard of ``ltm``) and the inner chunks that split the lattice, before any work is done.
-Tiles run as Dask tasks on whatever cluster is given; each reads its samples from the store,
-solves, and writes its own shard, so a tile is the unit of progress and of failure. In the
+Resampling runs one Dask task per square region of whole tiles, reading its frames from the
+store and writing its samples (:func:`resample_regions`); then up to 2 x 2 neighbouring tiles
+run per task (:func:`tile_groups`), on whatever cluster is given: each tile reads its samples
+from the store, solves, writes its own shard and then its done-mark, so a tile is the unit of
+progress and of failure, and a task lasts about a second or more. In the
 factored form (``form="factored"``) a tile writes its factors instead (:mod:`.factors`),
 gathered into the stored layout once every tile is solved.
 """
@@ -69,13 +72,14 @@ from ltmstore.stages.resample import (
     bin_positions,
     lattice_6d,
     path_length,
+    region_side,
+    resample_region,
     view_positions,
 )
 
 if TYPE_CHECKING:  # Dask loads where a near-light run needs it: a far-light run never does
     from collections.abc import Callable
 
-    import dask.array as da
     from distributed import Client
 
 TILES = "tiles"  # key of the tile completion marks in a tile's outputs
@@ -105,28 +109,42 @@ def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray
     return lattice  # the coarsest candidate
 
 
-def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str, params: dict,
-                geometry: Geometry, auto: bool, extent: dict | None = None,
-                chosen: ImageChoice | None = None, fractions: np.ndarray | None = None,
-                block_info=None) -> np.ndarray:
-    """Solve one pixel tile and write its ``ltm`` shard (or its factors) and confidence maps;
-    ``extent`` (the acquisition's ``object``) places the tile's pixels on the object plane;
-    ``chosen``: the finalists of ``auto`` for the whole image (:func:`choose_for_image`), that
-    the tile chooses between (None: ``method`` is ``auto``'s whole choice, or a named method);
-    ``fractions``: per tile, the fraction of its energy a colour LTM's factors may leave out
-    (the luminance's, from its held-out error).
+def _solve_tiles_task(tiles: list[tuple[int, int]], *, source: zarr.Array, plan: TilePlan,
+                      **solve) -> list[dict]:
+    """One Dask task: read the samples of each tile of ``tiles`` from ``source``, solve it and
+    write it (:func:`_solve_tile`, keyword arguments ``solve``); their records."""
+    records = []
+    for ty, tx in tiles:
+        (y0, y1), (x0, x1) = plan_rows(plan, ty, tx)
+        samples = np.asarray(source[y0:y1, x0:x1], dtype=np.float32)
+        records.append(_solve_tile(samples, (ty, tx), (y0, x0), plan.image, **solve))
+    return records
 
-    Returns ``[[record]]``: seconds, the parameters used and the held-out errors behind them.
+
+def _solve_tile(samples: np.ndarray, index: tuple[int, int], origin: tuple[int, int],
+                image: tuple[int, int], *, out: dict[str, zarr.Array], method: str,
+                params: dict, geometry: Geometry, auto: bool, extent: dict | None = None,
+                chosen: ImageChoice | None = None,
+                fractions: np.ndarray | None = None) -> dict:
+    """Solve one pixel tile (number ``index``, first pixel ``origin`` of an ``image``) and
+    write its ``ltm`` shard (or its factors) and confidence maps; ``extent`` (the acquisition's
+    ``object``) places the tile's pixels on the object plane; ``chosen``: the finalists of
+    ``auto`` for the whole image (:func:`choose_for_image`), that the tile chooses between
+    (None: ``method`` is ``auto``'s whole choice, or a named method); ``fractions``: per tile,
+    the fraction of its energy a colour LTM's factors may leave out (the luminance's, from its
+    held-out error).
+
+    Returns its record: seconds, the parameters used and the held-out errors behind them.
     """
     from ltmstore.solve.confidence import expected_error, flag_unsupported  # SciPy: here
     from ltmstore.solve.validate import observed_range
 
     start = time.perf_counter()
-    (y0, y1), (x0, x1) = block_info[0]["array-location"][:2]
+    (y0, x0), tile = origin, samples.shape[:2]
+    y1, x1 = y0 + tile[0], x0 + tile[1]
     batch = samples.reshape(-1, *samples.shape[2:])
     seed = y0 * 65536 + x0
     if extent is not None:
-        image = block_info[0]["shape"][:2]
         geometry = geometry.with_pixels(object_pixels(extent, image, slice(y0, y1),
                                                       slice(x0, x1)))
     label, method_error = method, None
@@ -141,7 +159,6 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
             method_error = picked.errors.get(label)
         choice = (choose_params(batch, geometry, method, params=params, seed=seed)
                   if auto else Choice(params=params, errors={}))
-    tile = samples.shape[:2]
     surface, warm = None, None
     if method == "physical":  # the surface's maps, and the start of the held-out fold's fit
         from ltmstore.solve import physical
@@ -150,7 +167,7 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
         warm = {"start": physical.parameters(surface)}
     else:
         estimate = get_method(method)(batch, geometry, **choice.params)
-    ty, tx = block_info[0]["chunk-location"][:2]
+    ty, tx = index
     _check_finite(estimate, batch, ty, tx)
     if sf.NORMAL in out:  # every chunk is written: NaN where the tile chose another method
         _write_surface_tile(out, surface, (slice(y0, y1), slice(x0, x1)), tile)
@@ -181,9 +198,7 @@ def _solve_tile(samples: np.ndarray, *, out: dict[str, zarr.Array], method: str,
     record["seconds"] = time.perf_counter() - start
     out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
     memory.trim()  # the tile's temporaries leave the worker's heap
-    result = np.empty((1, 1), dtype=object)
-    result[0, 0] = record
-    return result
+    return record
 
 
 def _check_finite(estimate: np.ndarray, batch: np.ndarray, ty: int, tx: int) -> None:
@@ -282,18 +297,56 @@ def _write_lattice(group: zarr.Group, binning: Binning) -> None:
     count[...] = binning.count
 
 
-def _write_samples(group: zarr.Group, name: str, frames: da.Array, binning: Binning,
-                   plan: TilePlan, client: Client) -> zarr.Array:
+def _write_samples(group: zarr.Group, name: str, frames: zarr.Array, binning: Binning,
+                   plan: TilePlan, client: Client, *, channel: int | None = None,
+                   progress: bool = False) -> zarr.Array:
+    """Resample the stored ``frames`` (``channel`` of them: a chroma channel) onto the lattice
+    into the variable ``name``: one task per pixel region of a near-light lattice
+    (:func:`~ltmstore.stages.resample.resample_region`, reading its frames from the store),
+    Dask's binning of frames chunks on a 6D one."""
     lattice = binning.lattice
     samples = st.create_variable(group, name, ("y", "x", *lattice.dims),
                                  (*plan.image, *lattice.shape), chunks=plan.block,
                                  dtype=OBSERVATION_DTYPE)
-    import dask.array as da
+    if len(lattice.shape) > 2:
+        import dask.array as da
 
-    binned = (bin_frames(frames, binning, tile=plan.tile).rechunk(plan.block, method="tasks")
-              .astype(OBSERVATION_DTYPE))
-    client.compute(da.store(binned, samples, lock=False, compute=False)).result()
+        lazy = da.from_zarr(frames)[() if channel is None else channel]
+        binned = (bin_frames(lazy, binning, tile=plan.tile).rechunk(plan.block, method="tasks")
+                  .astype(OBSERVATION_DTYPE))
+        client.compute(da.store(binned, samples, lock=False, compute=False)).result()
+        return samples
+    regions = resample_regions(plan, frames.chunks[-2:], frames.shape[-3])
+    futures = client.map(resample_region, regions, frames=frames, samples=samples,
+                         cells=binning.cell, count=binning.count.reshape(-1).astype(np.float32),
+                         channel=channel, pure=False)
+    _gather(futures, desc="resample regions", progress=progress)
     return samples
+
+
+def resample_regions(plan: TilePlan, frames_chunk: tuple[int, int],
+                     n_frames: int) -> list[tuple[slice, slice]]:
+    """The pixel regions of the resample tasks: squares of whole tiles
+    (:func:`~ltmstore.stages.resample.region_side`), clipped to the image."""
+    side = [region_side(t, c, n_frames) for t, c in zip(plan.tile, frames_chunk, strict=True)]
+    (h, w), (sy, sx) = plan.image, side
+    return [(slice(y, min(y + sy, h)), slice(x, min(x + sx, w)))
+            for y in range(0, h, sy) for x in range(0, w, sx)]
+
+
+def _gather(futures: list, *, desc: str, progress: bool, total: int | None = None,
+            size: Callable[[object], int] = lambda result: 1) -> list:
+    """The futures' results in completion order, under a progress bar of ``total`` steps
+    (default: one per future; ``size(result)`` steps for each); the first error is raised."""
+    from distributed import as_completed
+
+    done = []
+    with tqdm(total=len(futures) if total is None else total, desc=desc,
+              disable=not progress) as bar:
+        for fut in as_completed(futures):
+            done.append(fut.result())
+            bar.update(size(done[-1]))
+    return done
 
 
 def reconstruct(path, *, client: Client | None = None, scheduler: str | None = None,
@@ -603,8 +656,6 @@ def tiles_name(variable: str) -> str:
 def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method: str,
                  params: dict, auto: bool, color: bool, tile: int, progress: bool,
                  resume: bool, force: bool, light_major: bool, form: str) -> dict:
-    import dask.array as da
-
     plane = _plane(group)
     r, s, valid = group["pose_r"][:], group["pose_s"][:], group["pose_valid"][:]
     timings = {}
@@ -614,8 +665,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     pick = (partial(_pick_lattice, plane, r, s, valid) if len(positions) == 2
             else partial(lattice_6d, plane, _view_plane(group, path), positions, valid))
     lat, chosen = pick(shape=lattice, delta=delta_rs)
-    frames = da.from_zarr(group["frames"])
-    plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile)
+    plan = plan_tiles(group["frames"].shape[1:], lat.shape, tile=tile)
     check_fits(plan, path, what=f"the {chosen} lattice {'x'.join(map(str, lat.shape))}",
                ltm_copies=_ltm_copies(color, light_major, form))
     binning = bin_positions(lat, positions, valid)
@@ -648,11 +698,10 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     st.begin_stage(group, "reconstruct", {"run": key})
     st.drop_stage_variables(group, "resample", "reconstruct")  # possibly on another lattice
     _write_lattice(group, binning)
-    _write_samples(group, SAMPLES, frames, binning, plan, client)
-    if color:
-        chroma = da.from_zarr(group[FRAME_CHROMA])
-        for i, c in enumerate(CHROMA_CHANNELS):
-            _write_samples(group, CHROMA_SAMPLES[c], chroma[i], binning, plan, client)
+    _write_samples(group, SAMPLES, group["frames"], binning, plan, client, progress=progress)
+    for i, c in enumerate(CHROMA_CHANNELS if color else ()):
+        _write_samples(group, CHROMA_SAMPLES[c], group[FRAME_CHROMA], binning, plan, client,
+                       channel=i, progress=progress)
     st.complete_stage(group, "resample", {
         **sampling, "frames_used": int((binning.cell >= 0).sum())})
     timings["resample_s"] = time.perf_counter() - start
@@ -824,30 +873,41 @@ def _solve_tiles(samples: zarr.Array, out: dict[str, zarr.Array], *, plan: TileP
                  geometry: Geometry, method: str, params: dict, auto: bool, client: Client,
                  progress: bool, extent: dict | None,
                  fractions: np.ndarray | None = None) -> tuple[list[dict], int]:
-    """Run one Dask task per pixel tile not yet marked done in ``out[TILES]``.
+    """Solve every pixel tile not yet marked done in ``out[TILES]``, a few per Dask task
+    (:func:`tile_groups`).
 
     Returns every tile's record (earlier runs' from their marks) and how many were solved now.
     """
-    import dask.array as da
-    from distributed import as_completed
-
     marks = _read_marks(out[TILES])
     todo = marks == ""
     chosen = None
     if method == AUTO and todo.any():  # once for the image, not per tile
         chosen = choose_for_image(samples, plan, geometry, extent)
-    tiles = da.from_zarr(samples, chunks=plan.block).astype(np.float32)
-    records = tiles.map_blocks(_solve_tile, out=out, method=method, params=params,
-                               geometry=geometry, auto=auto, extent=extent, chosen=chosen,
-                               fractions=fractions, drop_axis=list(range(2, tiles.ndim)),
-                               chunks=(1, 1), dtype=object)
-    futures = client.compute(list(records.to_delayed()[todo]))
-    done = [json.loads(str(m)) for m in marks[~todo]]
-    with tqdm(total=len(futures), desc="reconstruct tiles", disable=not progress) as bar:
-        for fut in as_completed(futures):
-            done.append(fut.result().item())
-            bar.update()
-    return done, len(futures)
+    groups = tile_groups(todo)
+    futures = client.map(_solve_tiles_task, groups, source=samples, plan=plan, out=out,
+                         method=method, params=params, geometry=geometry, auto=auto,
+                         extent=extent, chosen=chosen, fractions=fractions, pure=False)
+    solved = _gather(futures, desc="reconstruct tiles", progress=progress,
+                     total=int(todo.sum()), size=len)
+    earlier = [json.loads(str(m)) for m in marks[~todo]]
+    return earlier + [record for records in solved for record in records], int(todo.sum())
+
+
+# A solve task takes up to GROUP_SIDE x GROUP_SIDE neighbouring tiles (a 32 x 32 px tile of
+# the 4K capture solves in about half a second, its task's overhead on a cluster's scheduler
+# is a few milliseconds), once the image has GROUP_MIN_TILES tiles to share among the workers.
+GROUP_SIDE, GROUP_MIN_TILES = 2, 64
+
+
+def tile_groups(todo: np.ndarray) -> list[list[tuple[int, int]]]:
+    """The tiles to solve (``todo`` True on the tile grid) in the groups of one task each:
+    squares of :data:`GROUP_SIDE` tiles a side, single tiles on a grid of fewer than
+    :data:`GROUP_MIN_TILES`."""
+    side = GROUP_SIDE if todo.size >= GROUP_MIN_TILES else 1
+    groups: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for ty, tx in np.argwhere(todo):
+        groups.setdefault((ty // side, tx // side), []).append((int(ty), int(tx)))
+    return list(groups.values())
 
 
 def _read_marks(marks: zarr.Array) -> np.ndarray:
