@@ -5,12 +5,14 @@ Run: ``python bench/cluster_4k.py --work W`` where ``W`` is the ``--work`` folde
 ``--store S`` names an ingested store to use (made by ``ltm ingest W/4k/acq S
 --exposure-locked`` when missing, timed; its frames are kept so that it can be run again).
 
-``dask scheduler`` and ``--workers`` ``dask worker`` processes (one thread each) are started as
-subprocesses on loopback, and ``ltm reconstruct S --scheduler ADDRESS --keep-frames`` runs with
-every other default. A scheduler plugin records every graph the scheduler receives and every
-task's compute time; the scheduler's CPU time is read before and after; the peak resident
-memory of the whole process tree (scheduler, workers, client) is sampled every 0.2 s. The
-store's SNR_Y is scored as ``bench/scale_4k.py`` scores it.
+``dask scheduler`` and ``--workers`` ``dask worker`` processes (one thread each, in the
+environment ``docs/flows.md`` gives them: :data:`WORKER_ENV`) are started as subprocesses on
+loopback, and ``ltm reconstruct S --scheduler ADDRESS --keep-frames`` runs with every other
+default on the store as ingest left it (an earlier run's later stages removed). A scheduler
+plugin records every graph the scheduler receives and every task's compute time; the
+scheduler's CPU time is read before and after; the peak resident memory of the whole process
+tree (scheduler, workers, client) is sampled every 0.2 s. The store's SNR_Y is scored as
+``bench/scale_4k.py`` scores it.
 
 From the measured tasks, the wall time on 32 and 256 workers: each phase's tasks (resample
 regions, solve groups) are list-scheduled with their measured durations on ``w`` workers; the
@@ -49,6 +51,9 @@ from ltmstore.synthetic.simulate import PLANE  # noqa: E402
 
 cloudpickle.register_pickle_by_value(cluster_bench)  # the plugin runs in the scheduler
 PHASES = {"resample": "resample_region", "solve": "solve_tiles_task"}
+# A user's `dask worker` as docs/flows.md starts it: one BLAS thread, and glibc's mmap threshold
+# fixed beside the nanny's MALLOC_TRIM_THRESHOLD_ (which alone slows a tile's solve 1.4x).
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "MALLOC_MMAP_THRESHOLD_": "33554432"}
 WORKERS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 
 
@@ -86,18 +91,17 @@ def main() -> None:
 def _on_cluster(store: Path, n_workers: int) -> dict:
     """``ltm reconstruct --scheduler`` on a fresh cluster: the command's wall time and peak
     memory (process tree), the graphs, the tasks by phase, the scheduler's CPU seconds."""
-    args = ["reconstruct", str(store), "--keep-frames"]
-    if st.stages(st.open_group(store, mode="r")).get("reconstruct", {}).get("complete"):
-        args.append("--overwrite")
+    _as_ingested(store)  # no earlier run's tiles resumed
     with PeakMemory() as memory:
-        address, procs = start_cluster(n_workers, store.parent)
+        address, procs = start_cluster(n_workers, store.parent, WORKER_ENV)
         try:
             with Client(address, timeout=60) as client:
                 client.wait_for_workers(n_workers, timeout=120)
                 client.register_plugin(Recorder())
                 scheduler = psutil.Process(procs[0].pid)
                 cpu = sum(scheduler.cpu_times()[:2])
-                run = _command([*args, "--scheduler", address])
+                run = _command(["reconstruct", str(store), "--keep-frames", "--scheduler",
+                                address])
                 cpu = sum(scheduler.cpu_times()[:2]) - cpu
                 rec = client.run_on_scheduler(recorded)
         finally:
@@ -118,6 +122,15 @@ def _on_cluster(store: Path, n_workers: int) -> dict:
             "graphs": [{"tasks": len(g["keys"]), "prefixes": sorted(set(g["prefixes"]))}
                        for g in rec["graphs"]],
             "phases": phases}
+
+
+def _as_ingested(store: Path) -> None:
+    """The store as ``ltm ingest`` left it: every later stage's variables and records gone."""
+    group = st.open_group(store, mode="r+")
+    for name in list(group):
+        if name not in (*st.STAGE_VARIABLES["ingest"], "t", "x", "y", "channel"):
+            del group[name]
+    group.attrs[st.STAGES_ATTR] = {"ingest": group.attrs[st.STAGES_ATTR]["ingest"]}
 
 
 def _phase(tasks: list[dict]) -> dict:

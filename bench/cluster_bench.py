@@ -99,11 +99,13 @@ def free_port() -> int:
         return sock.getsockname()[1]
 
 
-def start_cluster(n_workers: int, cwd: Path) -> tuple[str, list[subprocess.Popen]]:
-    """`dask scheduler` and ``n_workers`` `dask worker` processes, as a user starts them."""
+def start_cluster(n_workers: int, cwd: Path,
+                  env: dict | None = None) -> tuple[str, list[subprocess.Popen]]:
+    """`dask scheduler` and ``n_workers`` `dask worker` processes, as a user starts them, with
+    ``env`` added to their environment (default: ``OMP_NUM_THREADS=1``)."""
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    env = {**os.environ, **(env or {"OMP_NUM_THREADS": "1"})}
     logs = cwd / "dask-logs"
     logs.mkdir(exist_ok=True)
     procs = [subprocess.Popen([BIN / "dask", "scheduler", "--port", str(port), *LOOPBACK],

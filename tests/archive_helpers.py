@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import os
 import shutil
@@ -105,7 +106,9 @@ def slow_reference(small_store: Path, dask_cluster) -> Path:
     from distributed import Client
 
     if str(small_store) not in _REFERENCE:
-        store = copy_store(small_store, Path(tempfile.mkdtemp(prefix="ltm-ref-")) / "ref.zarr")
+        folder = tempfile.mkdtemp(prefix="ltm-ref-")
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        store = copy_store(small_store, Path(folder) / "ref.zarr")
         with Client(dask_cluster) as client:
             info = reconstruct(store, client=client, overwrite=True, progress=False, **SLOW)
         assert info["tiles_solved"] == N_TILES and info["tiles_resumed"] == 0
