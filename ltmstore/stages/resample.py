@@ -90,8 +90,8 @@ def _scatter_means(block: np.ndarray, *, cells: np.ndarray, m: int) -> np.ndarra
 
 TILE_FRAMES_BYTES = 256 * 2**20  # frames of one pixel tile binned at once
 # Frames (as float32) that one resample task reads at once: a region of 128 x 128 px of a
-# 1,359-frame 4K video (89 MiB) takes about a second, where a 32 x 32 px tile over Dask's
-# rechunked frame chunks made 136,504 tasks of milliseconds for the whole video.
+# 1,359-frame 4K video (89 MiB) took 1.2 s (median of 510, bench/cluster_4k.py), where 32 x 32
+# px tiles over Dask's rechunked frame chunks made 136,504 tasks of milliseconds.
 REGION_FRAMES_BYTES = 128 * 2**20
 
 
