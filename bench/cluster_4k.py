@@ -42,7 +42,14 @@ from distributed import Client  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 import cluster_bench  # noqa: E402
-from cluster_bench import Recorder, disk_write_mb_s, recorded, start_cluster, stop_cluster  # noqa: E402
+from cluster_bench import (  # noqa: E402
+    Recorder,
+    disk_write_mb_s,
+    plot_workers,
+    recorded,
+    start_cluster,
+    stop_cluster,
+)
 from scale_4k import _command, _machine, _variable_bytes, score  # noqa: E402
 from scale_bench import PeakMemory  # noqa: E402
 
@@ -190,19 +197,11 @@ def chart(result: dict, path: Path) -> None:
     a.set_ylabel("tasks")
     a.set_title(f"measured: 4K reconstruct, {result['workers']} dask workers", fontsize=9)
     a.legend(fontsize=7)
-    rows = result["projection"]["rows"]
-    ws = [r["workers"] for r in rows]
-    for key, style in (("wall_s", "k-o"), ("solve_s", "b--"), ("resample_s", "g-."),
-                       ("client_s", "m:")):
-        b.plot(ws, [r[key] / 60 for r in rows], style, label=key[:-2])
     b.axhline(result["reconstruct"]["wall_s"] / 60, color="grey", linestyle=":",
               label="measured wall")
-    b.set_xscale("log", base=2)
-    b.set_yscale("log")
-    b.set_xlabel("dask workers")
-    b.set_ylabel("minutes")
-    b.set_title("projected from the measured tasks", fontsize=9)
-    b.legend(fontsize=7)
+    plot_workers(b, result["projection"]["rows"],
+                 (("wall_s", "k-o"), ("solve_s", "b--"), ("resample_s", "g-."),
+                  ("client_s", "m:")), "projected from the measured tasks")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 

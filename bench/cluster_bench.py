@@ -346,19 +346,25 @@ def chart(result: dict, path: Path) -> None:
     a.tick_params(axis="y", labelsize=7)
     a.set_xlabel("seconds per task (median)")
     a.set_title(f"measured: {result['size']} px, {result['workers']} dask workers", fontsize=9)
-    ex = result["extrapolation_4k"]["rows"]
-    ws = [r["workers"] for r in ex]
-    for key, style in (("wall_s", "k-o"), ("compute_s", "b--"), ("scheduler_s", "r:"),
-                       ("storage_s", "g-."), ("serial_s", "m:")):
-        b.plot(ws, [r[key] / 60 for r in ex], style, label=key[:-2])
-    b.set_xscale("log", base=2)
-    b.set_yscale("log")
-    b.set_xlabel("dask workers")
-    b.set_ylabel("minutes")
-    b.set_title("extrapolated: 4K (3840 x 2160), 32 x 32 cells, 1,300 frames", fontsize=9)
-    b.legend(fontsize=7)
+    plot_workers(b, result["extrapolation_4k"]["rows"],
+                 (("wall_s", "k-o"), ("compute_s", "b--"), ("scheduler_s", "r:"),
+                  ("storage_s", "g-."), ("serial_s", "m:")),
+                 "extrapolated: 4K (3840 x 2160), 32 x 32 cells, 1,300 frames")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+
+
+def plot_workers(ax, rows: list[dict], series, title: str) -> None:
+    """Minutes of each ``(key, style)`` of ``series`` against the rows' dask workers (log-log)."""
+    ws = [r["workers"] for r in rows]
+    for key, style in series:
+        ax.plot(ws, [r[key] / 60 for r in rows], style, label=key[:-2])
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("dask workers")
+    ax.set_ylabel("minutes")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
 
 
 def measure(args, work: Path) -> dict:
