@@ -20,8 +20,7 @@ from ltmstore.core.store import open_store
 from ltmstore.judge.photos import heldout_photos
 from ltmstore.solve.lightfit import Model, rbf_models
 from ltmstore.stages import reconstruct_far
-from ltmstore.stages.distance_choice import SEPARATOR
-from ltmstore.stages.surface import NORMAL, PREFIX
+from ltmstore.stages.surface import NORMAL
 
 SCENE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "synthrti" / (
     "single-obj1-material3")
@@ -83,6 +82,4 @@ def test_a_surface_that_does_not_pay_is_skipped_and_the_time_saved_recorded(crop
     mse = timings["surface_heldout_mse"]
     assert min(v for k, v in mse.items() if k.startswith("exposure")) > mse[
         "hsh3+rbf:0.3:0.01"], mse
-    # the held-out choice away from the photographed lights, interpolants nearer to them
-    (name,) = info["chosen_per_tile"]
-    assert name.split(SEPARATOR)[-1] == "hsh3+rbf:0.3:0.01" and PREFIX not in name, name
+    assert set(info["chosen_per_tile"]) == {"hsh3+rbf:0.3:0.01"}

@@ -192,7 +192,6 @@ def test_auto_takes_the_model_only_by_a_margin(stores, tmp_path, monkeypatch):
     ``surface.MARGIN``: on this capture it does, by 28 % alone and by 73 % mixed with the
     classic fit."""
     from ltmstore.stages import surface
-    from ltmstore.stages.distance_choice import SEPARATOR
 
     lp = stores["physical"].parent / "capture" / "dirs.lp"
     chosen, default = {}, surface.MARGIN
@@ -208,9 +207,8 @@ def test_auto_takes_the_model_only_by_a_margin(stores, tmp_path, monkeypatch):
         mixed = min(v for k, v in mse.items() if k.startswith("exposure=")) / classic
         assert 0.62 < alone < 0.82, mse  # measured 0.72
         assert 0.24 < mixed < 0.31, mse  # measured 0.27: half surface, half classic
-    # the held-out choice (of lights away from the photographed ones) is the last piece
-    assert chosen[default][0].split(SEPARATOR)[-1].startswith(surface.PREFIX)
-    assert surface.PREFIX not in chosen[0.999][0] and len(chosen[0.999]) == 1
+    assert chosen[default][0].startswith(surface.PREFIX)
+    assert not chosen[0.999][0].startswith(surface.PREFIX) and len(chosen[0.999]) == 1
 
 
 def test_a_near_store_keeps_the_maps_of_its_physical_tiles(small_store, tmp_path, capsys):

@@ -326,8 +326,7 @@ def _has_surface(record: dict, acquisition: dict, method_map: Meta | None, far: 
         except (OSError, ValueError):
             return False
         methods = meta.get("attributes", {}).get("methods", [])
-        # a blend's name, or one piece of a choice by distance (ltmstore.stages.distance_choice)
-        return any(SURFACE_PREFIX in str(m) for m in methods)
+        return any(str(m).startswith(SURFACE_PREFIX) for m in methods)
     lattice = record.get("lattice", {}).get("dims", [])
     placed = "object" in acquisition if "placement" not in record \
         else bool((record["placement"] or {}).get("extent"))  # declared or estimated

@@ -38,7 +38,7 @@ import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, replace
+from dataclasses import asdict
 
 import numpy as np
 import zarr
@@ -54,7 +54,6 @@ from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.solve import Geometry, physical
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
 from ltmstore.stages import surface as sf
-from ltmstore.stages.distance_choice import DistanceChoice, pieces
 from ltmstore.stages.plan import plan_tiles, write_method_map
 
 FAR_LATTICE = (8, 8)
@@ -144,9 +143,9 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
         best = int(chosen[index])
         if best < len(models):
             fitted, residual = to_lattice[best] @ values, loo32[best] @ values
-        else:  # the image's model: the surface's blend, or models by distance (DistanceChoice)
-            tile_theta = None if theta is None else theta[rows, cols].reshape(-1, 3, 6)
-            fitted, residual = _cells_image(cell_parts, held, tile_theta, values)
+        else:  # the surface model plus its smoothed residual (and classic model)
+            tile_theta = theta[rows, cols].reshape(-1, 3, 6)
+            fitted, residual = at_cells.image_and_residual(tile_theta, values)
         fitted = np.clip(fitted, 0, None)
         ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
         rms = np.sqrt(np.mean(residual**2, axis=0))
@@ -156,7 +155,6 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
 
     solve_start = time.perf_counter()
     tiles = list(np.ndindex(plan.grid))
-    theta = cell_parts = held = None  # the surface, and the image's model at the cells
     with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
         mse = np.array(list(pool.map(lambda i: _loo_mse(pixels(i, choice=True)[2], loo, usable),
                                      tiles)))
@@ -165,19 +163,16 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
         names = [m.name for m in models]
         if method in ("auto", "physical"):
             loo_choice = models[pick(mse.mean(axis=0), models, len(train))]
-            classic, surface, image = _surface(group, valid, train, loo_choice, models, method,
-                                               timings, frames)
+            classic, surface = _surface(group, valid, train, loo_choice, models, method,
+                                        timings, frames)
             if classic != loo_choice:  # held-out lights prefer another classic model
                 chosen = choose_tiles(mse, models, len(train),
                                       common=models.index(classic)).reshape(plan.grid)
             if surface is not None:
-                theta, gain[:] = surface
-            if not isinstance(image, Model):  # a blend, or models by distance
-                # every tile takes the surface's; else those that took the image's classic model
-                follows = ... if surface is not None else chosen == models.index(classic)
-                chosen[follows] = len(names)
-                names.append(image.name)
-                cell_parts, held = _cell_parts(image, train, cells, loo32, models)
+                theta, blend, gain[:] = surface
+                at_cells = sf.BlendAt.of(blend, train, cells)  # once for every tile
+                chosen[...] = len(names)
+                names.append(blend.name)
         list(tqdm(pool.map(write, tiles), total=plan.n_tiles, desc="reconstruct tiles",
                   disable=not progress))
     timings["solve_s"] = time.perf_counter() - solve_start
@@ -200,10 +195,8 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
 
 def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: Model,
              models: tuple[Model, ...], method: str, timings: dict, luma: np.ndarray
-             ) -> tuple[Model, tuple[np.ndarray, np.ndarray] | None,
-                        Model | sf.Blend | DistanceChoice]:
-    """The image's classic model, the surface (:mod:`ltmstore.stages.surface`) and the image's
-    model.
+             ) -> tuple[Model, tuple[np.ndarray, sf.Blend, np.ndarray] | None]:
+    """The image's classic model and the surface model (:mod:`ltmstore.stages.surface`).
 
     With ``method="physical"`` the surface is fitted to the whole image and mixed with nothing.
     With ``auto``, held-out lights of a sample of the pixels score ``classic`` (the image's
@@ -213,20 +206,16 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     classic model is the image's, and the surface is fitted only where it lowers that model's
     held-out error by :data:`~ltmstore.stages.surface.MARGIN`; where it does not, the fit of
     every pixel is skipped and the time it would have taken (estimated from the choice's own
-    fits) is recorded as ``surface_skipped_s``. The same choice, made with the errors expected
-    nearer to the photographed lights, gives the image's model of each light
-    (:mod:`ltmstore.stages.distance_choice`).
+    fits) is recorded as ``surface_skipped_s``.
 
-    Returns the classic model, the surface's parameters ``(y, x, 3, 6)`` and the valid frames'
-    exposures (ones unless chosen) where it is fitted (its maps are then written to the
-    store), and the image's model: a classic :class:`~ltmstore.solve.lightfit.Model`, a
-    :class:`~ltmstore.stages.surface.Blend` or a :class:`DistanceChoice` of them.
+    Returns the classic model and, where the surface is fitted, its parameters ``(y, x, 3,
+    6)``, its :class:`~ltmstore.stages.surface.Blend` and the valid frames' exposures (ones
+    unless chosen); its maps are written to the store.
     """
     start = time.perf_counter()
     rgb = sf.frames_rgb(group, valid, luma)  # luma: the valid frames, already read
     flat = rgb.reshape(len(rgb), -1, 3)
     sample = np.sort(np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS])
-    encoded = linear_to_srgb((flat[:, sample] @ LUMA).astype(np.float32))
     exposure, weight, lobe = False, 1.0, "ggx"
     if method == "auto":
         lobe, timings["surface_lobe_loo_mse"] = sf.choose_lobe(flat[:, sample], train)
@@ -235,7 +224,10 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
         timings["surface_choice_s"] = time.perf_counter() - start
         best = sf.best_classic(scores, classic, models, len(train))
         key = None if best == classic else best.name
-        timings["surface_heldout_mse"] = _named(scores, classic, best)
+        timings["surface_heldout_mse"] = {
+            classic.name: scores[None], best.name: scores[key],
+            **{f"exposure={k[0]},weight={k[1]:g}": v for k, v in scores.items()
+               if isinstance(k, tuple)}}
         surface = sf.choose_surface(scores, key)
         if surface is None:
             # the choice fitted a surface of each lobe to the sample, and 2 FOLDS more (3/4 of
@@ -243,8 +235,7 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
             fits = 2 * sf.FOLDS + len(physical.LOBES)
             per_pixel = timings["surface_choice_s"] / (fits * len(sample))
             timings["surface_skipped_s"] = per_pixel * flat.shape[1]
-            fitted = sf.in_sample(encoded, train, classic, classics=models)
-            return best, None, _by_distance(scores, fitted, classic, models, train, timings)
+            return best, None
         exposure, weight = surface
     gain = np.ones(len(train), dtype=np.float32)
     if exposure:
@@ -253,86 +244,10 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
         _write_exposure(group, valid, gain)
     theta = sf.fit_image(rgb, train, lobe, workers=min(2, os.cpu_count() or 1))
     sf.write_surface(group, theta, lobe)
-    seen = linear_to_srgb((flat[:, sample] @ LUMA).astype(np.float32))  # divided by exposure
-    at_sample = theta.reshape(-1, 3, 6)[sample]
-    smoother = sf.choose_smoother(seen, at_sample, train, lobe)
-    blend = sf.Blend(smoother, classic, weight, lobe)
-    image: Model | sf.Blend | DistanceChoice = blend
-    if method == "auto":
-        fitted = sf.in_sample(encoded, train, classic, classics=models, lobe=lobe,
-                              surface=(exposure, seen, at_sample, smoother))
-        image = _by_distance(scores, fitted, classic, models, train, timings, blend)
+    encoded = linear_to_srgb((flat[:, sample] @ LUMA).astype(np.float32))
+    smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train, lobe)
     timings["surface_s"] = time.perf_counter() - start
-    return classic, (theta, gain), image
-
-
-Operator = sf.BlendAt | np.ndarray  # the image of a model at the cells from encoded values
-
-
-def _cell_parts(image: sf.Blend | DistanceChoice, train: np.ndarray, cells: np.ndarray,
-                loo: np.ndarray, models: tuple[Model, ...]
-                ) -> tuple[list[tuple[np.ndarray, Operator]], Operator]:
-    """The image's model at the lattice's ``cells``: ``[(cell indices, operator)]`` (a
-    :class:`~ltmstore.stages.surface.BlendAt` or a classic model's ``(cells, n)`` weights), and
-    the operator of its leave-one-light-out residual (of the held-out choice: the last model)."""
-    choice = image if isinstance(image, DistanceChoice) else DistanceChoice((image,), (0.0,))
-    parts = [(rows, sf.BlendAt.of(m, train, cells[rows]) if isinstance(m, sf.Blend)
-              else m.weights(train, cells[rows]).astype(np.float32))
-             for m, rows in choice.groups(train, cells)]
-    last = choice.models[-1]
-    held = next((op for _, op in parts if isinstance(op, sf.BlendAt) and op.blend == last),
-                None) if isinstance(last, sf.Blend) else loo[models.index(last)]
-    return parts, held if held is not None else sf.BlendAt.of(last, train, cells[:1])
-
-
-def _cells_image(parts: list[tuple[np.ndarray, Operator]], held: Operator,
-                 theta: np.ndarray | None,
-                 values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The image at the lattice's cells ``(cells, p)`` of the pixels' encoded ``values (n,
-    p)`` (and surface parameters ``theta (p, 3, 6)``) by :func:`_cell_parts`, and the leave-one-
-    light-out residual ``(n, p)``."""
-    fitted = np.empty((sum(len(rows) for rows, _ in parts), values.shape[1]), np.float32)
-    residual = None
-    for rows, op in parts:
-        if isinstance(op, sf.BlendAt):
-            fitted[rows], own = op.image_and_residual(theta, values)
-            residual = own if op is held else residual
-        else:
-            fitted[rows] = op @ values
-    if residual is None:
-        residual = held.loo_residual(theta, values) if isinstance(held, sf.BlendAt) \
-            else held @ values
-    return fitted, residual
-
-
-def _named(errors: dict, classic: Model, best: Model) -> dict[str, float]:
-    """The stage record's names of :func:`~ltmstore.stages.surface.cross_validated`'s keys:
-    the image's classic model, the best classic one and the surface's variants."""
-    return {classic.name: errors[None], best.name: errors[None if best == classic else best.name],
-            **{f"exposure={k[0]},weight={k[1]:g}": v for k, v in errors.items()
-               if isinstance(k, tuple)}}
-
-
-def _by_distance(held_out: dict, fitted: dict, classic: Model, models: tuple[Model, ...],
-                 train: np.ndarray, timings: dict, blend: sf.Blend | None = None
-                 ) -> Model | sf.Blend | DistanceChoice:
-    """The image's model of each light (:mod:`ltmstore.stages.distance_choice`) from the
-    ``held_out`` and ``fitted`` (every light) errors of the classic models and of ``blend``'s
-    exposure at every weight; recorded in ``timings``."""
-
-    def choose(errors: dict) -> Model | sf.Blend:
-        best = sf.best_classic(errors, classic, models, len(train))
-        ours = sf.choose_surface(errors, None if best == classic else best.name) \
-            if blend is not None else None
-        return best if ours is None else replace(blend, weight=ours[1])
-
-    chosen = pieces(held_out, fitted, choose)
-    timings["surface_fitted_mse"] = _named(
-        fitted, classic, sf.best_classic(held_out, classic, models, len(train)))
-    timings["model_by_reach"] = [[start, model.name] for start, model in chosen]
-    if len(chosen) == 1:
-        return chosen[0][1]
-    return DistanceChoice(tuple(m for _, m in chosen), tuple(s for s, _ in chosen))
+    return classic, (theta, sf.Blend(smoother, classic, weight, lobe), gain)
 
 
 def _load_kernels() -> None:

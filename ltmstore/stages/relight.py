@@ -71,9 +71,9 @@ from ltmstore.core.transfer import (
     srgb_to_linear,
 )
 from ltmstore.solve.hsh import hsh_basis
+from ltmstore.solve.lightfit import Model
 from ltmstore.stages import surface
 from ltmstore.stages.by_light import light_major
-from ltmstore.stages.distance_choice import DistanceChoice, far_model, surface_blend
 from ltmstore.stages.plan import METHOD_MAP
 
 LIGHT = "light"
@@ -483,15 +483,15 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
     per_pixel = np.repeat(np.repeat(codes, ty, 0), tx, 1)[: ds.sizes["y"], : ds.sizes["x"]]
     per_pixel = xr.DataArray(per_pixel, dims=("y", "x"))
     names = {int(c): chosen.attrs["methods"][int(c)] for c in np.unique(codes)}
-    models = {c: far_model(name) for c, name in names.items()}
+    models = {c: surface.Blend.from_name(name) if name.startswith(surface.PREFIX)
+              else Model(name) for c, name in names.items()}
     weights = {c: xr.DataArray(m.weights(train, dirs).astype(np.float32), dims=(LIGHT, T))
                for c, m in models.items()}
-    blends = {c: b for c, m in models.items() if (b := surface_blend(m)) is not None}
-    physical = list(blends)
-    for c, blend in blends.items():  # the lobe is written twice: the name and the surface's own
-        if blend.lobe != surface.surface_lobe(ds):
+    physical = [c for c, m in models.items() if isinstance(m, surface.Blend)]
+    for c in physical:  # the lobe is written twice: the method's name and the surface's own
+        if models[c].lobe != surface.surface_lobe(ds):
             raise LtmError(f"the far-light store's method {names[c]!r} names the "
-                           f"{blend.lobe} lobe, its roughness the "
+                           f"{models[c].lobe} lobe, its roughness the "
                            f"{surface.surface_lobe(ds)} lobe; run `ltm reconstruct` again")
 
     def apply(encoded: xr.DataArray) -> xr.DataArray:
@@ -518,11 +518,9 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
 
 
 def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
-                        blend: surface.Blend | DistanceChoice, color: bool) -> xr.DataArray:
+                        blend: surface.Blend, color: bool) -> xr.DataArray:
     """What the surface model adds to its blend's linear image at ``dirs``
-    (:meth:`ltmstore.stages.surface.Blend.correction`, or a
-    :class:`~ltmstore.stages.distance_choice.DistanceChoice`'s at the lights its blend relights),
-    sRGB-encoded,
+    (:meth:`ltmstore.stages.surface.Blend.correction`), sRGB-encoded,
     ``(light, y, x[, color])``."""
     theta = surface.read_surface(ds)
     image = theta.shape[:2]

@@ -343,35 +343,6 @@ def cross_validated(rgb: np.ndarray, train: np.ndarray, classic: Model, *,
     return {key: error / encoded.size for key, error in errors.items()}
 
 
-def in_sample(encoded: np.ndarray, train: np.ndarray, classic: Model, *,
-              classics: Sequence[Model] = (), surface: tuple[bool, np.ndarray, np.ndarray,
-                                                          Model] | None = None,
-              lobe: str = "ggx") -> dict[tuple[bool, float] | str | None, float]:
-    """:func:`cross_validated`'s errors with every light fitted, at those lights: how far each
-    model misses the photographs ``encoded (n, p)`` (sRGB-encoded luminance) themselves. The
-    surface's keys ``(exposure, weight)`` only for ``surface``: its exposure and, fitted to the
-    photographs (divided by their exposures where chosen), their encoded luminance, parameters
-    ``(p, 3, 6)`` and residual smoother."""
-    gram = encoded.astype(np.float64) @ encoded.T.astype(np.float64)
-    eye = np.eye(len(train))
-
-    def classic_error(model: Model) -> float:  # mean of ((I - H) E)^2, from the Gram matrix
-        misfit = eye - model.hat(train)
-        return float(np.einsum("ij,ij->", misfit @ gram, misfit)) / encoded.size
-
-    errors = {None: classic_error(classic),
-              **{m.name: classic_error(m) for m in classics if m != classic}}
-    if surface is not None:
-        exposure, seen, theta, smoother = surface
-        at_train = model_encoded(theta, train, color=False, lobe=lobe)
-        ours = smoother.hat(train) @ (seen - at_train) + at_train
-        theirs = classic.hat(train) @ seen
-        for weight in WEIGHTS:
-            errors[(exposure, weight)] = float(np.mean(
-                (weight * ours + (1 - weight) * theirs - encoded) ** 2))
-    return errors
-
-
 def choose_lobe(rgb: np.ndarray, train: np.ndarray) -> tuple[str, dict[str, float]]:
     """The lobe's distribution (of ``physical.LOBES``) for the pixels ``rgb (t, p, 3)`` (linear,
     a sample of the image's), and each one's score: the surface of each lobe is fitted to every
