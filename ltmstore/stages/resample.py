@@ -79,6 +79,13 @@ def _tile_means(block: np.ndarray, cells: np.ndarray, *, count: np.ndarray,
     return out
 
 
+def _means(sums, count: np.ndarray):
+    """Per-cell means of summed frames ``(..., M)`` (NumPy or Dask), ``count`` frames per
+    flat cell ``(M,)``: NaN where a cell has none."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return sums / np.where(count > 0, count, np.nan).astype(np.float32)
+
+
 def _scatter_means(block: np.ndarray, *, cells: np.ndarray, m: int) -> np.ndarray:
     """``(y, x, 2 K)`` sums and counts -> ``(y, x, M)`` means, NaN where a pixel has none."""
     k = len(cells)
@@ -125,11 +132,9 @@ def resample_region(where: tuple[slice, slice], *, frames: zarr.Array, samples: 
         means = _tile_means(frames[(*lead, slice(None), *where)], cells[:, None, None],
                             count=count, m=m)
     else:
-        sums = sum(_block_sums(frames[(*lead, slice(t, t + step), *where)],
-                               cells[t:t + step, None, None], m=m)[0]
-                   for t in range(0, n, step))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            means = sums / np.where(count > 0, count, np.nan)
+        means = _means(sum(_block_sums(frames[(*lead, slice(t, t + step), *where)],
+                                       cells[t:t + step, None, None], m=m)[0]
+                           for t in range(0, n, step)), count)
     samples[where] = means.reshape(y1 - y0, x1 - x0, *samples.shape[2:]).astype(samples.dtype)
 
 
@@ -202,10 +207,7 @@ def bin_frames(frames: da.Array, binning: Binning, *, block_frames: int = 512,
     partial = da.map_blocks(_block_sums, frames, cells, m=binning.m, new_axis=3,
                             chunks=((1,) * frames.numblocks[0], *frames.chunks[1:],
                                     (binning.m,)), dtype=np.float32)
-    sums = partial.sum(axis=0, split_every=8)
-    count = binning.count.reshape(-1).astype(np.float32)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        means = sums / np.where(count > 0, count, np.nan)
+    means = _means(partial.sum(axis=0, split_every=8), binning.count.reshape(-1))
     return means.reshape(*frames.shape[1:], *binning.lattice.shape)
 
 
