@@ -109,8 +109,8 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
     loo = np.array([np.zeros((len(train),) * 2) if a is None else a for a in operators])
     loo32 = loo.astype(np.float32)  # per pixel (expected_error): float32 as the values
     to_lattice = [m.weights(train, cells).astype(np.float32) for m in models]
-    # linear (stored in float16): each tile encodes its own pixels
-    frames = np.asarray(group[FRAMES][:])[valid].astype(np.float32)
+    # linear, kept in float16 as stored: each tile converts and encodes its own pixels
+    frames = np.asarray(group[FRAMES][:])[valid]
     gain = np.ones(len(frames), dtype=np.float32)  # the frames' exposures (surface.exposures)
     plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile or FAR_TILE, chunk_bytes=2**20)
     st.begin_stage(group, "resample")
@@ -164,7 +164,7 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
         if method in ("auto", "physical"):
             loo_choice = models[pick(mse.mean(axis=0), models, len(train))]
             classic, surface = _surface(group, valid, train, loo_choice, models, method,
-                                        timings, frames)
+                                        timings, frames, progress)
             if classic != loo_choice:  # held-out lights prefer another classic model
                 chosen = choose_tiles(mse, models, len(train),
                                       common=models.index(classic)).reshape(plan.grid)
@@ -194,8 +194,8 @@ def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, meth
 
 
 def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: Model,
-             models: tuple[Model, ...], method: str, timings: dict, luma: np.ndarray
-             ) -> tuple[Model, tuple[np.ndarray, sf.Blend, np.ndarray] | None]:
+             models: tuple[Model, ...], method: str, timings: dict, luma: np.ndarray,
+             progress: bool) -> tuple[Model, tuple[np.ndarray, sf.Blend, np.ndarray] | None]:
     """The image's classic model and the surface model (:mod:`ltmstore.stages.surface`).
 
     With ``method="physical"`` the surface is fitted to the whole image and mixed with nothing.
@@ -210,17 +210,19 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
 
     Returns the classic model and, where the surface is fitted, its parameters ``(y, x, 3,
     6)``, its :class:`~ltmstore.stages.surface.Blend` and the valid frames' exposures (ones
-    unless chosen); its maps are written to the store.
+    unless chosen); its maps are written to the store. The frames' RGB is read band by band
+    of rows (:func:`~ltmstore.stages.surface.row_bands`), never whole: once for the sample,
+    once for the fit.
     """
     start = time.perf_counter()
-    rgb = sf.frames_rgb(group, valid, luma)  # luma: the valid frames, already read
-    flat = rgb.reshape(len(rgb), -1, 3)
-    sample = np.sort(np.random.default_rng(0).permutation(flat.shape[1])[:sf.CHOICE_PIXELS])
+    n_pixels = luma.shape[1] * luma.shape[2]
+    sample = np.sort(np.random.default_rng(0).permutation(n_pixels)[:sf.CHOICE_PIXELS])
+    chosen = sf.sample_rgb(group, valid, luma, sample)  # luma: the valid frames, already read
     exposure, weight, lobe = False, 1.0, "ggx"
     if method == "auto":
-        lobe, timings["surface_lobe_loo_mse"] = sf.choose_lobe(flat[:, sample], train)
+        lobe, timings["surface_lobe_loo_mse"] = sf.choose_lobe(chosen, train)
         timings["surface_lobe"] = lobe
-        scores = sf.cross_validated(flat[:, sample], train, classic, classics=models, lobe=lobe)
+        scores = sf.cross_validated(chosen, train, classic, classics=models, lobe=lobe)
         timings["surface_choice_s"] = time.perf_counter() - start
         best = sf.best_classic(scores, classic, models, len(train))
         key = None if best == classic else best.name
@@ -234,20 +236,35 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
             # the lights each)
             fits = 2 * sf.FOLDS + len(physical.LOBES)
             per_pixel = timings["surface_choice_s"] / (fits * len(sample))
-            timings["surface_skipped_s"] = per_pixel * flat.shape[1]
+            timings["surface_skipped_s"] = per_pixel * n_pixels
             return best, None
         exposure, weight = surface
     gain = np.ones(len(train), dtype=np.float32)
     if exposure:
-        gain[:] = sf.exposures(flat[:, sample], train, lobe=lobe)
-        rgb /= gain[:, None, None, None]
+        gain[:] = sf.exposures(chosen, train, lobe=lobe)
+        chosen /= gain[:, None, None]
         _write_exposure(group, valid, gain)
-    theta = sf.fit_image(rgb, train, lobe, workers=min(2, os.cpu_count() or 1))
+    theta = _fit_bands(group, valid, luma, train, gain, lobe, progress)
     sf.write_surface(group, theta, lobe)
-    encoded = linear_to_srgb((flat[:, sample] @ LUMA).astype(np.float32))
+    encoded = linear_to_srgb((chosen @ LUMA).astype(np.float32))
     smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train, lobe)
     timings["surface_s"] = time.perf_counter() - start
     return classic, (theta, sf.Blend(smoother, classic, weight, lobe), gain)
+
+
+def _fit_bands(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, train: np.ndarray,
+               gain: np.ndarray, lobe: str, progress: bool) -> np.ndarray:
+    """The surface's parameters ``(y, x, 3, 6)`` of every pixel, fitted band by band of rows
+    to the valid frames divided by their exposures ``gain``."""
+    theta = None
+    bands = sf.row_bands(luma.shape)
+    for rows in tqdm(bands, desc="surface fit", unit="band", disable=not progress):
+        rgb = sf.frames_rgb(group, valid, luma, rows) / gain[:, None, None, None]
+        part = sf.fit_image(rgb, train, lobe, workers=min(2, os.cpu_count() or 1))
+        if theta is None:
+            theta = np.empty((luma.shape[1], *part.shape[1:]), dtype=part.dtype)
+        theta[rows] = part
+    return theta
 
 
 def _load_kernels() -> None:

@@ -90,6 +90,9 @@ LOBE_MARGIN = 0.1
 CHOICE_PIXELS = 4096  # pixels of the image that score it
 MAP_CHUNK = 512  # rows and columns of a map's chunks
 BLOCK = 4096  # pixels fitted at once (memory: a few (BLOCK, lights, 6) arrays)
+# The frames' linear RGB read and fitted at once, a band of rows: a whole 4 MP, 48-light
+# capture in float32 took 7.4 GB at its peak, a 24 MP one would not fit in a laptop's memory.
+BAND_BYTES = 2**28
 GEOMETRY, LINEAR = [0, 1, 4], [2, 3, 5]  # theta's normal and roughness; the rest, linear
 
 
@@ -179,17 +182,40 @@ class BlendAt:
         return image, weight * own + (1 - weight) * (self.loo_other @ encoded)
 
 
-def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = None
-               ) -> np.ndarray:
-    """Linear RGB of the valid frames, ``(t, y, x, 3)`` float32; ``luma``: their luminance
-    where it is already read."""
-    y = np.asarray(group["frames"][:])[valid].astype(np.float32) if luma is None else luma
-    cb, cr = (np.asarray(group["frame_chroma"][i])[valid].astype(np.float32) for i in (0, 1))
+def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = None,
+               rows: slice = slice(None)) -> np.ndarray:
+    """Linear RGB of the valid frames' ``rows``, ``(t, rows, x, 3)`` float32; ``luma``: the
+    valid frames' luminance ``(t, y, x)`` (every row) where it is already read."""
+    y = np.asarray(group["frames"][:, rows])[valid] if luma is None else luma[:, rows]
+    y = y.astype(np.float32)
+    cb, cr = (np.asarray(group["frame_chroma"][i, :, rows])[valid].astype(np.float32)
+              for i in (0, 1))
     # written channel by channel into float32: a stacked image took twice the memory
     rgb = np.empty((*y.shape, 3), dtype=np.float32)
     for c, channel in enumerate(rgb_from_ycbcr(y, cb, cr)):
         np.maximum(channel, 0, out=rgb[..., c], casting="same_kind")
     return rgb
+
+
+def row_bands(shape: tuple[int, int, int]) -> list[slice]:
+    """Bands of the rows of frames ``shape (t, y, x)`` whose linear RGB (float32) takes at
+    most :data:`BAND_BYTES` (one row at least)."""
+    t, height, width = shape
+    rows = max(1, BAND_BYTES // (t * width * 3 * 4))
+    return [slice(start, min(start + rows, height)) for start in range(0, height, rows)]
+
+
+def sample_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, pixels: np.ndarray
+               ) -> np.ndarray:
+    """Linear RGB ``(t, p, 3)`` of the valid frames at the flat indices ``pixels`` (sorted),
+    read band by band (:func:`row_bands`)."""
+    width = luma.shape[2]
+    parts = []
+    for rows in row_bands(luma.shape):
+        inside = pixels[(pixels >= rows.start * width) & (pixels < rows.stop * width)]
+        band = frames_rgb(group, valid, luma, rows).reshape(len(luma), -1, 3)
+        parts.append(band[:, inside - rows.start * width])
+    return np.concatenate(parts, axis=1)
 
 
 def fit_pixels(rgb: np.ndarray, train: np.ndarray, lobe: str = "ggx") -> np.ndarray:
