@@ -259,8 +259,10 @@ def _fit_bands(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, train: np
     theta = None
     bands = sf.row_bands(luma.shape)
     for rows in tqdm(bands, desc="surface fit", unit="band", disable=not progress):
-        rgb = sf.frames_rgb(group, valid, luma, rows) / gain[:, None, None, None]
+        rgb = sf.frames_rgb(group, valid, luma, rows)
+        rgb /= gain[:, None, None, None]
         part = sf.fit_image(rgb, train, lobe, workers=min(2, os.cpu_count() or 1))
+        del rgb  # before the next band is read
         if theta is None:
             theta = np.empty((luma.shape[1], *part.shape[1:]), dtype=part.dtype)
         theta[rows] = part
