@@ -114,17 +114,18 @@ def chart(result: dict, path: Path) -> None:
     series = [("", "ltm (this code)", "C0"), ("old_", f"ltm ({result['old_label']})", "C1"),
               ("relight_cli_", "relight-cli -b rbf", "0.3")]
     for prefix, label, color in series:
-        for ax, keys in ((axes[0], ("both_s", "rbf_s")),
-                         (axes[1], ("reconstruct_gib", "rbf_gib"))):
+        for ax, keys, style, suffix in ((axes[0], ("both_s", "rbf_s"), "o-", ""),
+                                        (axes[1], ("reconstruct_gib", "rbf_gib"), "o-", ""),
+                                        (axes[1], ("ingest_rti_gib",), "s--", ", ingest-rti")):
             values = np.array([next((sizes[s][prefix + k] for k in keys
                                      if prefix + k in sizes[s]), np.nan) for s in sizes])
             if np.isfinite(values).any():
-                ax.plot(mp, values, "o-", color=color, label=label)
+                ax.plot(mp, values, style, color=color, label=label + suffix)
     memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     axes[1].axhline(memory, color="k", ls="--", lw=1, label=f"this machine ({memory:.0f} GiB)")
     axes[0].set_title("ingest-rti + reconstruct, whole commands (wall)", fontsize=10)
     axes[0].set_ylabel("seconds")
-    axes[1].set_title("peak resident memory of reconstruct", fontsize=10)
+    axes[1].set_title("peak resident memory of reconstruct (and of ingest-rti)", fontsize=10)
     axes[1].set_ylabel("GiB")
     for ax in axes:
         ax.set_xlabel(f"megapixels ({result['lights']} photographs)")

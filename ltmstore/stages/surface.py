@@ -90,8 +90,8 @@ LOBE_MARGIN = 0.1
 CHOICE_PIXELS = 4096  # pixels of the image that score it
 MAP_CHUNK = 512  # rows and columns of a map's chunks
 BLOCK = 4096  # pixels fitted at once (memory: a few (BLOCK, lights, 6) arrays)
-# The frames' linear RGB read and fitted at once, a band of rows: a whole 4 MP, 48-light
-# capture in float32 took 7.4 GB at its peak, a 24 MP one would not fit in a laptop's memory.
+# The frames' linear RGB read and fitted at once, a band of rows: a whole 4 MP, 47-light
+# capture in float32 took 6.6 GiB at its peak (bench/rti_scale.py); 24 MP would not fit in 24 GiB.
 BAND_BYTES = 2**28
 GEOMETRY, LINEAR = [0, 1, 4], [2, 3, 5]  # theta's normal and roughness; the rest, linear
 
