@@ -248,7 +248,7 @@ def test_the_surface_fitted_band_by_band_is_the_whole_images(tmp_path, monkeypat
     assert sf.EXPOSURE in one  # the flash's exposures, fitted on the sample first
     for name in (*sf.SURFACE, sf.EXPOSURE, "ltm", "expected_error"):
         # the per-pixel fit depends slightly on the pixels fitted beside it (as with
-        # fit_image's blocks before: a robust scale and a shared roughness are the batch's):
+        # fit_image's blocks before: the robust scale's floor is the batch's largest value):
         # measured at most 6.5e-6 of the largest value run alone, 1.24e-5 (one normal
         # component) in a whole suite's run
         a, b = one[name].values, banded[name].values
