@@ -29,30 +29,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from ltmstore.capture.lp import read_lp
 from ltmstore.core.provenance import commit
 
 sys.path.insert(0, str(Path(__file__).parent))
-from rti_speed import PEER_SCENE, load, ltm_command  # noqa: E402
-
-
-def resized_capture(data: Path, folder: Path, megapixels: float, lights: int) -> Path:
-    """The first ``lights`` dome photographs of :data:`PEER_SCENE` resized to ``megapixels``."""
-    lp = data / PEER_SCENE / "dome" / "dirs.lp"
-    names, directions = read_lp(lp)
-    folder.mkdir(parents=True)
-    side = round(np.sqrt(megapixels * 1e6))
-    lines = [str(lights)]
-    for i, name in enumerate(names[:lights]):
-        image = cv2.imread(str(lp.parent / name), cv2.IMREAD_COLOR)
-        big = cv2.resize(image, (side, side), interpolation=cv2.INTER_CUBIC)
-        cv2.imwrite(str(folder / f"im{i:02d}.jpg"), big, [cv2.IMWRITE_JPEG_QUALITY, 95])
-        lines.append(f"im{i:02d}.jpg {' '.join(f'{v:.6f}' for v in directions[i])}")
-    (folder / "dirs.lp").write_text("\n".join(lines) + "\n")
-    return folder / "dirs.lp"
+from rti_speed import load, ltm_command, resized_capture  # noqa: E402
 
 
 def run(command: list[str], env: dict | None = None) -> tuple[float, float]:
@@ -160,12 +142,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="ltm-rti-scale-") as tmp:
         tmp = Path(tmp)
         # once each, not timed: Numba compiles and caches its kernels in a tree's first run
-        warm = resized_capture(args.data, tmp / "warm-up", 0.01, args.lights)
+        warm = resized_capture(args.data, tmp / "warm-up", 1e4, args.lights)
         ours(warm, tmp / "new.zarr")
         if args.old:
             ours(warm, tmp / "old.zarr", {**os.environ, "PYTHONPATH": str(args.old)})
         for size in args.sizes.split(","):
-            lp = resized_capture(args.data, tmp / f"capture-{size}MP", float(size), args.lights)
+            lp = resized_capture(args.data, tmp / f"capture-{size}MP", float(size) * 1e6,
+                                 args.lights)
             old = args.old if size in old_sizes else None
             row = measure(lp, tmp, args.repeats, old, relight_cli)
             result["sizes"][size] = row

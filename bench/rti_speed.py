@@ -88,14 +88,19 @@ def load() -> list[float]:
 def peer_capture(data: Path, tmp: Path) -> Path:
     """The first 47 dome photographs of :data:`PEER_SCENE` resized to about 0.22 MP (JPEG)."""
     pixels, lights = PEER_SIZE
+    return resized_capture(data, tmp / "peer-0.22MP-47", pixels, lights)
+
+
+def resized_capture(data: Path, folder: Path, pixels: float, lights: int) -> Path:
+    """The first ``lights`` dome photographs of :data:`PEER_SCENE` resized to about ``pixels``
+    (square, JPEG quality 95) in ``folder``; its ``.lp``."""
     lp = data / PEER_SCENE / "dome" / "dirs.lp"
     names, directions = read_lp(lp)
-    folder = tmp / "peer-0.22MP-47"
-    folder.mkdir()
+    folder.mkdir(parents=True)
+    side = round(np.sqrt(pixels))
     lines = [str(lights)]
     for i, name in enumerate(names[:lights]):
         image = cv2.imread(str(lp.parent / name), cv2.IMREAD_COLOR)
-        side = round(np.sqrt(pixels))
         big = cv2.resize(image, (side, side), interpolation=cv2.INTER_CUBIC)
         cv2.imwrite(str(folder / f"im{i:02d}.jpg"), big, [cv2.IMWRITE_JPEG_QUALITY, 95])
         lines.append(f"im{i:02d}.jpg {' '.join(f'{v:.6f}' for v in directions[i])}")

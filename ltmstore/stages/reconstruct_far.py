@@ -259,16 +259,13 @@ def _fit_bands(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, train: np
                gain: np.ndarray, lobe: str, progress: bool) -> np.ndarray:
     """The surface's parameters ``(y, x, 3, 6)`` of every pixel, fitted band by band of rows
     to the valid frames divided by their exposures ``gain``."""
-    theta = None
+    theta = np.empty((*luma.shape[1:], 3, 6))
     bands = sf.row_bands(luma.shape)
     for rows in tqdm(bands, desc="surface fit", unit="band", disable=not progress):
         rgb = sf.frames_rgb(group, valid, luma, rows)
         rgb /= gain[:, None, None, None]
-        part = sf.fit_image(rgb, train, lobe, workers=min(2, os.cpu_count() or 1))
+        theta[rows] = sf.fit_image(rgb, train, lobe, workers=min(2, os.cpu_count() or 1))
         del rgb  # before the next band is read
-        if theta is None:
-            theta = np.empty((luma.shape[1], *part.shape[1:]), dtype=part.dtype)
-        theta[rows] = part
     return theta
 
 
