@@ -1,6 +1,6 @@
 """Screenshots of the two ``ltm capture`` pages while a capture runs, on a phone-sized viewport.
 
-The same simulated capture and fake cameras as ``tests/test_capture_browser.py``: headless
+The same simulated capture and fake cameras as ``tests/capture/test_live_pages.py``: headless
 Chromium (Debian's ``chromium``) plays phone A's and camera B's simulated videos into the pages
 served by the real ``ltm capture``; each page is photographed while phone A streams.
 

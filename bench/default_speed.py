@@ -56,7 +56,7 @@ def run_command(store: Path, extra: list[str], repeats: int) -> dict:
 def scene_row(work: Path, scene: str, size: int, repeats: int) -> dict:
     acq = work / scene
     simulate_acquisition(acq, scene=scene, size=size, seed=0, progress=False)
-    store = acq / "store.zarr"
+    store = acq.with_name(acq.name + ".zarr")  # beside the acquisition, never inside it
     ingest(acq, store, progress=False)
     truth = open_store(acq / "truth.zarr")["ltm"]
     row = {"scene": scene, "size": size}

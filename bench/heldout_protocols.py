@@ -7,21 +7,23 @@ bench/results/heldout_table.json] [--out bench/results] [NAME ...]`` (names as i
 ``auto`` decides between the image's classic fit and the surface variants (the surface model
 plus its residual, raw or exposure-corrected, mixed with the classic fit at
 :data:`ltmstore.stages.surface.WEIGHTS`) by their held-out error at the capture's own lights
-(:func:`ltmstore.stages.surface.cross_validated`). On 7 of the README table's 49 captures (all
-renders of a Beckmann or mismatched shading) the variant it takes is 0.36-2.85 dB below the best
-classic fit at the test lights. This bench asks whether another protocol or criterion would
-have chosen better. For each capture it records every variant's PSNR at the test lights and each
-training light's held-out squared error (luminance, 4096 pixels) by three protocols:
+(:func:`ltmstore.stages.surface.cross_validated`). On 7 of the held-out table's 49 captures (all
+renders of a Beckmann or mismatched shading, before the Beckmann lobe) the variant it takes was
+0.36-2.85 dB below the best classic fit at the test lights. This bench asks whether another
+protocol or criterion would have chosen better. For each capture it records every variant's
+PSNR at the test lights and each training light's held-out squared error (luminance, 4096
+pixels) by three protocols:
 
 * ``every_4th``: every 4th light in turn (what ``auto`` does);
-* ``rings``: alternate rings of a dome (:func:`heldout_variants.ring_folds`; domes only);
+* ``rings``: alternate rings of a dome (:func:`ring_folds`; domes only);
 * ``buffered``: every 8th light in turn, its two nearest lights left out of the fit too (a gap
   like that between a dome's rings, for any layout of lights);
 
 scored by three criteria: the summed error (``auto``'s), the mean of each light's log error (the
 table's mean PSNR is a mean of logs) and the summed error with each third of the lights'
 elevation range weighted equally. ``choose_surface``'s rule then picks a variant from each; the
-gap of its test PSNR to the table's best classic fit is the result. Writes
+gap of its test PSNR to the table's best classic fit is the result, beside the ``oracle`` (the
+variant best at the test lights). The variants are those of the GGX lobe. Writes
 ``heldout_protocols.json`` (per capture: test PSNR and each rule's choice; the per-light errors
 stay in ``--cache``) and
 ``heldout_protocols.png`` (mean and worst gap and count below -0.2 dB per rule).
@@ -38,7 +40,6 @@ from pathlib import Path
 
 import numpy as np
 from heldout_table import captures, render
-from heldout_variants import chosen, predictions, ring_folds, split
 
 from ltmstore.core.dims import LUMA
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
@@ -48,6 +49,59 @@ from ltmstore.stages import surface as sf
 
 SAMPLE = 4096  # pixels scored at the training lights (as auto's choice)
 BANDS = 3  # equal parts of the training lights' elevation range (criterion "bands")
+RING_GAP = 3.0  # degrees of elevation: a larger gap between sorted lights starts a new ring
+
+
+def split(data: Path, name: str):
+    """Training directions and 8-bit photographs, test directions and photographs: every 6th
+    light hidden on a real capture, ``dome/`` against ``test/`` on SynthRTI."""
+    if name.startswith("synthrti/"):
+        return (*load_photos(data / name / "dome" / "dirs.lp"),
+                *load_photos(data / name / "test" / "dirs.lp"))
+    directions, photos = load_photos(data / name / "dirs.lp")
+    hidden = np.arange(len(directions)) % 6 == 5
+    return directions[~hidden], photos[~hidden], directions[hidden], photos[hidden]
+
+
+def ring_folds(train: np.ndarray) -> list[np.ndarray] | None:
+    """Alternate rings of a dome (at least four rings, each narrower than the narrowest gap
+    between them), or None."""
+    elevation = np.degrees(np.arcsin(np.clip(train[:, 2], -1, 1)))
+    order = np.argsort(elevation)
+    gaps = np.diff(elevation[order])
+    ring = np.empty(len(train), dtype=int)
+    ring[order] = np.concatenate([[0], np.cumsum(gaps > RING_GAP)])
+    widths = [np.ptp(elevation[ring == r]) for r in range(ring.max() + 1)]
+    if ring.max() < 3 or max(widths) >= gaps[gaps > RING_GAP].min():
+        return None
+    return [np.flatnonzero(ring % 2 == parity) for parity in (0, 1)]
+
+
+def chosen(cv: dict[str, float]) -> str:
+    """The variant :func:`ltmstore.stages.surface.choose_surface` takes by these scores."""
+    keys = {k: (k.startswith("exposure"), float(k.split()[1])) for k in cv if k != "classic"}
+    choice = sf.choose_surface({None: cv["classic"], **{keys[k]: cv[k] for k in keys}})
+    return "classic" if choice is None else next(k for k, v in keys.items() if v == choice)
+
+
+def predictions(rgb: np.ndarray, train: np.ndarray, query: np.ndarray, classic: Model, *,
+                color: bool) -> dict[str, np.ndarray]:
+    """Every variant's sRGB-encoded images at ``query`` from linear ``rgb (n, p, 3)``: the
+    classic fit, and the surface model plus its smoothed residual fitted to the photographs as
+    they are (``raw W``) or divided by each one's exposure (``exposure W``), mixed with the
+    classic fit at weight ``W``."""
+    out = {}
+    for kind in ("raw", "exposure"):
+        x = rgb / sf.exposures(rgb, train)[:, None, None] if kind == "exposure" else rgb
+        _, theta, smoother = sf.fitted(x, train)
+        values = linear_to_srgb((x if color else x @ LUMA).astype(np.float32))
+        ours = (np.tensordot(smoother.weights(train, query), values, axes=1)
+                + sf.correction(theta, train, query, smoother, color=color))
+        theirs = np.tensordot(classic.weights(train, query), values, axes=1)
+        out.update({f"{kind} {w:g}": w * ours + (1 - w) * theirs for w in sf.WEIGHTS})
+    out["classic"] = np.tensordot(classic.weights(train, query), linear_to_srgb(
+        (rgb if color else rgb @ LUMA).astype(np.float32)), axes=1)
+    return out
 
 
 def buffered_folds(train: np.ndarray, every: int = 8, neighbours: int = 2

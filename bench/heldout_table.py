@@ -1,11 +1,11 @@
 """Held-out PSNR of the default beside every classic fit, on every capture and on far-light
-renders made with other assumptions: the README's table.
+renders made with other assumptions (docs/benchmarks.md, "Real captures: held-out photographs").
 
 Run: ``python bench/heldout_table.py [--data ../shared/data] [--cache DIR] [--out bench/results]
-[NAME ...]``.
+[--figure] [NAME ...]``.
 
 * Captures: the real ones of ``--data`` (every 6th light hidden) and the SynthRTI scenes
-  (fitted on ``dome/``, scored on ``test/``), as in ``bench/heldout_photos.py``;
+  (fitted on ``dome/``, scored on ``test/``);
 * renders (``render/SCENE-SHADING-DOME``, made once into ``--cache``): the synthetic canvas,
   icon and relief (96 x 96 pixels) under far lights (a point light 50 m away) with the GGX
   shading of :mod:`ltmstore.synthetic.render`, a Beckmann lobe, or :data:`MISMATCHED`
@@ -19,7 +19,11 @@ For each: :func:`ltmstore.judge.photos.heldout_photos` (PSNR of 8-bit sRGB image
 pixel and channel, averaged over the held-out lights) of the default pipeline and of PTM, HSH2,
 HSH3, RBF and HSH3 + RBF residual. Each capture's result is cached in ``--cache`` (the run can be
 stopped and resumed; ``--rerun`` scores again). Writes ``heldout_table.json`` and
-``heldout_table.md`` to ``--out`` from every cached result of the current names.
+``heldout_table.md`` to ``--out`` from every cached result of the current names; ``--figure``
+also ``heldout_photos.png`` (the README's and the gallery's picture): the first held-out
+photograph of three captures beside the default's and the best classic fit's relit images
+(those three scored again, keeping the images). The captures are third-party data: they are
+read in place and never copied.
 """
 
 from __future__ import annotations
@@ -48,6 +52,8 @@ TEST = {20: 5, 40: 5, 60: 5, 80: 5}
 SCENES = ("canvas", "icon", "relief")
 RENDER_SIZE = 96
 DISTANCE = 50.0  # metres: a point light this far from a 20 cm object is a far light
+FIGURE = ("realrti-item9-coin", "loewenkopf", "synthrti/multi-obj2-material1")
+FIGURE_NAME = "heldout_photos.png"
 
 
 def rings(spec: dict[int, int], offset: float = 0.0) -> np.ndarray:
@@ -151,8 +157,38 @@ def summary(results: dict[str, dict]) -> dict:
             "below_0.2_db": int((gaps < -0.2).sum())}
 
 
+def figure(found: dict[str, tuple[Path, dict]], path: Path) -> None:
+    """Rows of hidden photograph | default | best classic fit for the captures of
+    :data:`FIGURE` found, labelled, as one PNG."""
+    rows = []
+    for name in (n for n in FIGURE if n in found):
+        lp, kwargs = found[name]
+        report = heldout_photos(lp, keep=0, **kwargs)
+        psnr = {m: report["methods"][m]["mean_psnr"] for m in report["methods"]}
+        best, images = report["best_classic"], report["images"]
+        height = 240
+        tiles = [cv2.resize(t, (round(t.shape[1] * height / t.shape[0]), height),
+                            interpolation=cv2.INTER_NEAREST)
+                 for t in (images["photograph"], images["default"], images[best])]
+        labels = ["hidden photograph", f"default (mean {psnr['default']:.1f} dB)",
+                  f"{best} (mean {psnr[best]:.1f} dB)"]
+        for tile, label in zip(tiles, labels, strict=True):
+            cv2.putText(tile, label, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1,
+                        cv2.LINE_AA)
+        strip = np.concatenate(tiles, axis=1)
+        cv2.putText(strip, name, (4, height - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                    (255, 255, 0), 1, cv2.LINE_AA)
+        rows.append(strip)
+    if not rows:
+        raise SystemExit(f"none of the figure's captures {FIGURE} found")
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 4), (0, width - r.shape[1]), (0, 0))) for r in rows]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), np.concatenate(rows)[..., ::-1])
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("names", nargs="*", help="captures to score (default: every one)")
     parser.add_argument("--data", default=Path("../shared/data"), type=Path)
     parser.add_argument("--cache", default=Path(tempfile.gettempdir()) / "ltm-heldout-table",
@@ -160,6 +196,8 @@ def main() -> None:
     parser.add_argument("--out", default=Path("bench/results"), type=Path)
     parser.add_argument("--rerun", action="store_true", help="score cached captures again")
     parser.add_argument("--no-write", action="store_true", help="score only, write no table")
+    parser.add_argument("--figure", action="store_true",
+                        help=f"also draw {FIGURE_NAME} from {', '.join(FIGURE)}")
     args = parser.parse_args()
     found = captures(args.data, args.cache)
     unknown = sorted(set(args.names) - set(found))
@@ -174,6 +212,8 @@ def main() -> None:
         print(f"{name:>34s} " + " ".join(f"{m} {v:6.2f}" for m, v in row.items())
               + f"  default - best {report['default_minus_best_classic_db']:+.2f} dB"
               f"  ({report['methods']['default']['model']})", flush=True)
+    if args.figure:
+        figure(found, args.out / FIGURE_NAME)
     if args.no_write:
         return
     cached = {name: json.loads(path.read_text()) for name in found

@@ -139,7 +139,7 @@ def sync(acq: Path, sim: dict) -> dict:
 
 
 def reconstruct_snr(acq: Path, truth: Path, lattice: tuple[int, int]) -> dict:
-    store = acq / "store.zarr"
+    store = acq.with_name(acq.name + ".zarr")  # beside the acquisition, never inside it
     start = time.perf_counter()
     ok, text, err = ltm("ingest", acq, store, "--overwrite")
     if ok:

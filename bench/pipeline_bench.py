@@ -48,9 +48,10 @@ def cs_vs_lars(work: Path, *, size: int, crop: int, repeats: int) -> list[dict]:
     for scene in SCENES:
         acq = work / scene
         simulate_acquisition(acq, scene=scene, size=size, seed=0, progress=False)
-        ingest(acq, acq / "store.zarr", progress=False)
-        info = reconstruct(acq / "store.zarr", lattice=(32, 32), progress=False)
-        ds, truth = open_store(acq / "store.zarr"), open_store(acq / "truth.zarr")["ltm"]
+        store = acq.with_name(acq.name + ".zarr")  # beside the folder, never inside it
+        ingest(acq, store, progress=False)
+        info = reconstruct(store, lattice=(32, 32), progress=False)
+        ds, truth = open_store(store), open_store(acq / "truth.zarr")["ltm"]
         window = {"y": slice(size // 2 - crop // 2, size // 2 + crop // 2),
                   "x": slice(size // 2 - crop // 2, size // 2 + crop // 2)}
         samples = ds["samples"].isel(window).values
@@ -120,9 +121,10 @@ def main() -> None:
         rows = cs_vs_lars(work, size=args.size, crop=args.crop, repeats=args.repeats)
         big = work / "relight"
         simulate_acquisition(big, scene="canvas", size=128, seed=0, progress=False)
-        ingest(big, big / "store.zarr", progress=False)
-        reconstruct(big / "store.zarr", lattice=(32, 32), progress=False)
-        queries = relight_queries(big / "store.zarr", repeats=args.repeats)
+        big_store = big.with_name(big.name + ".zarr")
+        ingest(big, big_store, progress=False)
+        reconstruct(big_store, lattice=(32, 32), progress=False)
+        queries = relight_queries(big_store, repeats=args.repeats)
     result = {"machine": {"platform": platform.platform(), "python": platform.python_version(),
                           "cpus": __import__("os").cpu_count()},
               "ltmstore": __version__, "command": "python bench/pipeline_bench.py",

@@ -22,8 +22,9 @@ The product's own commands then run on both, as a user runs them: ``ltm ingest
 --exposure-locked`` (the simulator's camera is locked), ``ltm reconstruct`` (every default:
 method, lattice, form) and ``ltm compact`` (drops the decoded frames). Each is timed as a whole
 process, with the peak resident memory of its whole process tree (sampled every 0.2 s).
-Written to ``scale_4k.json``: each command's wall time, peak memory and stage record, the
-store's bytes per variable before and after ``ltm compact``, one point light's relighting time
+Written to ``scale_4k.json`` in ``--out`` (``bench/results/scale_4k``): each command's wall
+time, peak memory and stage record, the store's bytes per variable before and after ``ltm
+compact``, one point light's relighting time
 (median of 5, each on a freshly opened store; and warm, median of 10 on a store opened once,
 after a first light) and SNR_Y against the simulation's truth on the pixels ``[4::8, 4::8]``
 (the truth of a 4K pixel is that of the rendered pixel it was scaled from), beside the
@@ -73,7 +74,7 @@ BITRATE = 50.0  # Mbit/s: a phone's 4K H.264
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--work", default="/tmp/ltm-4k", help="scratch folder (about 30 GB)")
-    parser.add_argument("--out", default="bench/results")
+    parser.add_argument("--out", default="bench/results/scale_4k")
     parser.add_argument("--size", type=int, default=384, help="rendered side (pixels)")
     parser.add_argument("--speed", type=float, default=0.095, help="hand speed (m/s)")
     parser.add_argument("--target", default="2160x3840", help="the video's ROWSxCOLUMNS")

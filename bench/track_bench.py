@@ -74,7 +74,7 @@ def link_or_copy(src: Path, dst: Path) -> None:
 
 
 def reconstruct_snr(acq: Path, truth: Path, lattice: tuple[int, int]) -> dict:
-    store = acq / "store.zarr"
+    store = acq.with_name(acq.name + ".zarr")  # beside the acquisition, never inside it
     start = time.perf_counter()
     ing = ingest(acq, store, progress=False, overwrite=True)
     info = reconstruct(store, lattice=lattice, progress=False, overwrite=True)

@@ -1,6 +1,6 @@
 """Round trip of ``ltm view``: the page's request for a relit image, measured in Chromium.
 
-Run: ``python bench/view_latency.py STORE`` (a reconstructed store; the README's figure uses the
+Run: ``python bench/view_latency.py STORE`` (a reconstructed store; the docs' figure uses the
 Toys-size store of ``bench/scale_bench.py --config toys``: 400 x 400 px, 50 x 50 lattice).
 Starts ``ltm view STORE`` as a real process, loads the page in headless Chromium (Debian's
 ``chromium``; the DevTools driver of ``tests/browser.py``), moves the pointer to ``--repeats``

@@ -57,7 +57,7 @@ class Browser:
             page = next(t for t in json.load(r) if t["type"] == "page")
         # no keepalive pings: a local socket needs none, and under load Chromium once left one
         # unanswered for websockets' 20 s while its page finished a recording, which closed the
-        # connection mid-test (5 errors of tests/test_capture_browser.py in a clean-clone run,
+        # connection mid-test (5 errors of tests/capture/test_live_pages.py in a clean-clone run,
         # 2026-11-28); every call's own receive timeout is the guard
         self.ws = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=timeout,
                           ping_interval=None)

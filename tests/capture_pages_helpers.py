@@ -1,5 +1,6 @@
 """The two pages of ``ltm capture`` driven in headless Chromium, each fed by a fake camera that
-plays a simulated raw capture (``tests/test_capture_browser.py``, ``bench/capture_screenshots.py``).
+plays a simulated raw capture (``tests/capture/test_live_pages.py``,
+``bench/capture_screenshots.py``).
 
 The raw capture is simulated small: phone A 640 x 360 (500 px focal, as ``test_two_phones``)
 filming the ChArUco board, camera B 24 px, 225 frames (7.5 s) at 30 fps. Chromium plays a

@@ -75,3 +75,22 @@ def small_store(small_acquisition, tmp_path_factory, dask_cluster):
     with Client(dask_cluster) as client:
         reconstruct(store, client=client, lattice=(16, 16), progress=False)
     return store
+
+
+@pytest.fixture(scope="session")
+def far_store(tmp_path_factory):
+    """A dome capture of a flickering flash: its surface model and exposures are fitted."""
+    import json
+
+    from dome_helpers import RINGS, flash, write_capture
+
+    from ltmstore.stages.ingest_rti import ingest_rti
+    from ltmstore.stages.reconstruct import reconstruct
+
+    root = tmp_path_factory.mktemp("far")
+    lp = write_capture(root / "capture", flash(sum(RINGS.values())))
+    ingest_rti(lp, root / "s.zarr", progress=False)
+    reconstruct(root / "s.zarr", progress=False)
+    record = json.loads((root / "s.zarr" / "zarr.json").read_text())["attributes"]
+    assert record["stages"]["reconstruct"]["exposure_fitted"]
+    return root / "s.zarr"

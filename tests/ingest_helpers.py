@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ltmstore.core.dims import Plane, rgb_to_ycbcr
@@ -101,3 +102,26 @@ def tree_hashes(folder: Path) -> dict[str, str]:
     """SHA-256 of every file under ``folder``."""
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+# Light directions of the tiny capture: (lx, ly, lz) before normalisation.
+DIRS = np.array([[0, 0, 1], [0.5, 0, 1], [0, -0.5, 1], [1, 1, 1], [-1, 0.2, 1], [0.2, 0.1, 2],
+                 [0.1, 0.1, 1], [-0.3, -0.3, 1], [0.4, 0.2, 1], [3, 0, 1], [0, 0.3, 1]])
+COLOUR = np.array([0.7, 0.5, 0.3])  # linear RGB of the tiny scene
+
+
+def gains(n):
+    return 0.2 + 0.6 * np.arange(n) / n
+
+
+def write_capture(folder: Path, dirs=DIRS, *, trailing: str = "   ") -> Path:
+    """Tiny PNG capture: image i is the constant colour COLOUR * gains[i] (sRGB encoded)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    lines = [f"{len(dirs)}{trailing}"]
+    for i, (d, g) in enumerate(zip(dirs, gains(len(dirs)), strict=True)):
+        rgb = encode(np.broadcast_to(g * COLOUR, (6, 5, 3)), "srgb")
+        assert cv2.imwrite(str(folder / f"im{i:02d}.png"), rgb[..., ::-1])
+        lines.append(f"im{i:02d}.png {d[0]} {d[1]} {d[2]}{trailing}")
+    path = folder / "dirs.lp"
+    path.write_text("\n".join(lines) + "\n\n")
+    return path

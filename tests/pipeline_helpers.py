@@ -118,3 +118,13 @@ def tmpfs(folder: Path, size: str):
         yield folder
     finally:
         subprocess.run(["umount", str(folder)], check=False)
+
+
+def one_line_error(proc, pattern: str) -> None:
+    """Exit status 2 and exactly one error line, the last one (a progress bar may precede it)."""
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    lines = proc.stderr.strip().splitlines()
+    errors = [line for line in lines if line.startswith("ltm") and "error" in line]
+    assert errors == [lines[-1]], proc.stderr
+    assert pattern in lines[-1], proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -229,6 +229,7 @@ class LiveServer(ThreadingHTTPServer):
     """The capture's server, holding the :class:`LiveSession`; HTTPS when ``tls`` is given."""
 
     daemon_threads = True
+    request_queue_size = 64  # a burst of the pages' requests waits (the default 5 resets them)
 
     def __init__(self, session: LiveSession, host: str, port: int,
                  tls: ssl.SSLContext | None = None, fingerprint: str | None = None) -> None:

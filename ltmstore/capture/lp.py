@@ -1,6 +1,12 @@
 """Classic RTI captures: the ``.lp`` light file and the decoding of its photographs.
 
 :mod:`ltmstore.stages.ingest_rti` turns what this module reads into a store.
+
+The ``.lp`` directions are given in the frame the photographs were taken in, the camera
+sensor's: every photograph is read as its pixels are stored, and an EXIF orientation tag (a
+phone or camera turned for portrait shots) is ignored, consistently for every image, with one
+warning line naming the files that carry one (:func:`warn_orientations`). Turning some of
+them would put their pixels, but not their light directions, in another frame.
 """
 
 from __future__ import annotations
@@ -22,6 +28,22 @@ MAX_LP_BYTES = 16 * 1024 * 1024  # a light file is a few kB; refuse anything thi
 
 class LpWarning(LtmWarning):
     """A light file entry was skipped or its image found under another path (one line)."""
+
+
+class OrientationWarning(LpWarning):
+    """Photographs carry an EXIF orientation tag, ignored: read as stored (one line)."""
+
+
+ORIENTATION_TAG = 0x0112  # EXIF Orientation; 1 (or absent) is upright as stored
+
+
+def hidden_lights(n: int, every: int) -> np.ndarray:
+    """Which of ``n`` lights the ``every = k`` protocol hides: ``(n,)`` bool, true at lights
+    ``k-1, 2k-1, ...``; :class:`LtmError` unless ``k`` is a whole number from 2 to ``n``."""
+    if isinstance(every, bool) or int(every) != every or every < 2 or every > n:
+        raise LtmError(f"--holdout-lights {every!r} must be a whole number from 2 to the "
+                       f"number of lights ({n})")
+    return np.arange(n) % int(every) == int(every) - 1
 
 
 def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
@@ -165,9 +187,9 @@ def _entry(path: Path, number: int, text: str) -> tuple[str, list[float]]:
     return parts[0], direction
 
 
-def _declared_size(data: bytes, name: str) -> tuple[int, int]:
-    """Width and height from the image header (Pillow reads the header only); (0, 0) when
-    Pillow does not know the format (OpenCV then decides)."""
+def _header(data: bytes, name: str) -> tuple[int, int, int]:
+    """Width, height and EXIF orientation from the image header (Pillow reads the header
+    only); ``(0, 0, 1)`` when Pillow does not know the format (OpenCV then decides)."""
     import io
     import warnings
 
@@ -177,26 +199,50 @@ def _declared_size(data: bytes, name: str) -> tuple[int, int]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             with Image.open(io.BytesIO(data)) as image:
-                return image.size
+                try:
+                    orientation = int(image.getexif().get(ORIENTATION_TAG, 1))
+                except (OSError, ValueError, TypeError, SyntaxError):  # a damaged EXIF block
+                    orientation = 1
+                return (*image.size, orientation)
     except Image.DecompressionBombError as exc:
         raise LtmError(f"image {name!r} declares too many pixels ({exc}); expected at most "
                        f"{MAX_IMAGE_PIXELS} pixels") from exc
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
-        return 0, 0
+        return 0, 0, 1
+
+
+def image_orientation(data: bytes, name: str) -> int:
+    """The EXIF orientation of one image file's bytes (1, upright, when it has none)."""
+    return _header(data, name)[2]
+
+
+def warn_orientations(tagged: dict[str, int], total: int) -> None:
+    """One :class:`OrientationWarning` line for the images of ``tagged`` (name: EXIF
+    orientation other than 1) among ``total`` images; nothing when it is empty."""
+    if not tagged:
+        return
+    shown = ", ".join(f"{name!r} ({value})" for name, value in list(tagged.items())[:3])
+    more = f" and {len(tagged) - 3} more" if len(tagged) > 3 else ""
+    warnings.warn(f"{len(tagged)} of {total} image(s) carry an EXIF orientation tag, ignored: "
+                  f"{shown}{more}; every image is read as stored, in the camera's frame that "
+                  "the .lp directions are given in", OrientationWarning, stacklevel=2)
 
 
 def decode_image(data: bytes, name: str) -> np.ndarray:
     """Decode one image file's bytes as (H, W, 3) RGB: uint8, or uint16 for a 16-bit image.
 
     The header's declared size is checked first (:data:`MAX_IMAGE_PIXELS`), so a corrupt or
-    hostile header never makes the decoder allocate gigabytes.
+    hostile header never makes the decoder allocate gigabytes. The pixels are returned as
+    stored: an EXIF orientation tag is ignored (see the module's note); the callers that read a
+    whole capture say so once (:func:`warn_orientations`).
     """
-    width, height = _declared_size(data, name)
+    width, height, _ = _header(data, name)
     if width * height > MAX_IMAGE_PIXELS:
         raise LtmError(f"image {name!r} declares {width} x {height} pixels; expected at most "
                        f"{MAX_IMAGE_PIXELS} pixels")
     try:
-        flags = cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH  # 16-bit images keep 16 bits
+        # 16-bit images keep 16 bits; pixels as stored, never turned by an EXIF orientation
+        flags = cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION
         bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
     except cv2.error:  # empty data, or a header declaring more pixels than OpenCV accepts
         bgr = None

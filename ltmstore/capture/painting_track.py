@@ -716,7 +716,7 @@ def track_painting(video: str | os.PathLike, painting: PaintingMap, intr: Intrin
         As :func:`ltmstore.capture.track.save_tracks` (``matches``: the median number of
         inlying painting points), and ``shutter_ms``, the shutter time used.
     """
-    out = refuse_existing(out, overwrite)
+    out = refuse_existing(out, overwrite, inputs=(video,))
     results, shutter_s = _track_video(video, painting, intr, config, readout_s, shutter_s,
                                       progress)
     return {**save_tracks(out, results, STATUSES, count_column="matches"),

@@ -28,6 +28,7 @@ from ltmstore.capture.acquisition import write_text_atomic
 from ltmstore.capture.board import MIN_CORNERS, BoardDetector, BoardSpec, video_frames
 from ltmstore.capture.calibrate import Intrinsics
 from ltmstore.core.errors import LtmError
+from ltmstore.core.paths import check_output
 
 MAX_REPROJECTION_PX = 1.5  # RMS, at 1280 px wide (scaled with the image width)
 MAX_TILT_DEG = 20.0
@@ -208,6 +209,12 @@ def flag_out_of_plane(results: list[FramePose], config: TrackConfig) -> list[Fra
             if r.status == "ok" and abs(r.led[2] - height) > tol else r for r in results]
 
 
+def frames_path(out: str | os.PathLike) -> Path:
+    """The per-frame tracking file written beside the poses file ``out``."""
+    out = Path(out)
+    return out.with_name(out.stem + ".frames.csv")
+
+
 def write_tracks(out: str | os.PathLike, results: list[FramePose], *,
                  count_column: str = "corners") -> dict:
     """Write ``poses.csv`` (good and out-of-plane frames) and ``<stem>.frames.csv`` (all).
@@ -216,7 +223,7 @@ def write_tracks(out: str | os.PathLike, results: list[FramePose], *,
     are written beside and moved into place, so a failure leaves no half-written file.
     """
     out = Path(out)
-    frames_csv = out.with_name(out.stem + ".frames.csv")
+    frames_csv = frames_path(out)
     keep = [r for r in results if r.status in WRITTEN]
     rows = "".join(f"{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f}\n" for r in keep)
     detail = "".join(f"{i},{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f},{r.corners},"
@@ -228,9 +235,13 @@ def write_tracks(out: str | os.PathLike, results: list[FramePose], *,
     return {"poses": str(out), "frames_csv": str(frames_csv)}
 
 
-def refuse_existing(out: str | os.PathLike, overwrite: bool) -> Path:
-    """``out`` as a path, refused when it exists and ``overwrite`` is not set."""
+def refuse_existing(out: str | os.PathLike, overwrite: bool,
+                    inputs: tuple = ()) -> Path:
+    """``out`` as a path, refused when it exists and ``overwrite`` is not set, or when it or
+    the per-frame file beside it is, lies in or holds one of ``inputs`` (the video)."""
     out = Path(out)
+    for path in (out, frames_path(out)) if out.name else (out,):
+        check_output(path, inputs)
     if out.exists() and not overwrite:
         raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")
     return out
@@ -286,6 +297,6 @@ def track(video: str | os.PathLike, spec: BoardSpec, intr: Intrinsics, out: str 
     dict
         As :func:`save_tracks` (``corners``: the median corner count).
     """
-    out = refuse_existing(out, overwrite)
+    out = refuse_existing(out, overwrite, inputs=(video,))
     results = track_video(video, spec, intr, config, progress=progress)
     return save_tracks(out, results, STATUSES)

@@ -21,7 +21,9 @@ from functools import partial
 
 from ltmstore.core.errors import LtmError, LtmWarning
 
-EPILOG = "Docs: README.md. Stores open with xarray.open_zarr(STORE, consolidated=False)."
+PREFECT_STARTUP_ENV = "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS"
+PREFECT_STARTUP_TIMEOUT_S = 300  # the default of PREFECT_STARTUP_ENV when the user sets none
+EPILOG = "Docs: README.md and docs/. Stores open with xarray.open_zarr(STORE, consolidated=False)."
 
 
 class Parser(argparse.ArgumentParser):
@@ -42,10 +44,10 @@ class Parser(argparse.ArgumentParser):
         return super().parse_known_args(args, namespace)
 
     def parse_args(self, args=None, namespace=None):
-        from ltmstore.cli.suggest import command_parser, unrecognized
-
         parsed, extras = self.parse_known_args(args, namespace)
         if extras:  # named by the command that does not know them, with the closest option
+            from ltmstore.cli.suggest import command_parser, unrecognized
+
             parser = command_parser(self, parsed)
             parser.error(unrecognized(parser, extras))
         return parsed
@@ -69,6 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ltm`` console script."""
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    # Prefect's temporary server (ltm demo, ltm archive run) takes 6-17 s to start, and longer
+    # on a busy machine than Prefect's own 20 s default: wait for it (before Prefect is imported)
+    os.environ.setdefault(PREFECT_STARTUP_ENV, str(PREFECT_STARTUP_TIMEOUT_S))
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")  # cluster chatter off
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg quiet: our errors say it
     os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
@@ -104,7 +109,30 @@ def _run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("ltm: interrupted", file=sys.stderr)
         return 130
+    except RuntimeError as exc:
+        message = prefect_not_started(exc)
+        if message is None:
+            raise
+        print(f"ltm: error: {one_line(message)}", file=sys.stderr)
+        return 2
     return 0
+
+
+def prefect_not_started(exc: BaseException) -> str | None:
+    """The one-line error for Prefect's temporary server that did not start (found anywhere in
+    ``exc``'s chain), or None for another error."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        text = str(exc)
+        if "ephemeral Prefect API server" in text:
+            exited = text.partition(" Ephemeral server process ")[2].partition(".")[0]
+            why = f" (its process {exited})" if exited else ""
+            return (f"Prefect's temporary server did not start within "
+                    f"{os.environ.get(PREFECT_STARTUP_ENV, '?')} s{why}; set {PREFECT_STARTUP_ENV} "
+                    "higher, or PREFECT_API_URL to a running server (prefect server start)")
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 MESSAGE_MAX = 400  # characters of an error line; a longer one keeps its head and its tail

@@ -5,17 +5,17 @@ from __future__ import annotations
 import argparse
 
 from ltmstore.cli.args import number, print_json
+from ltmstore.cli.names import DEFAULT_METHOD, METHOD_NAMES
 from ltmstore.core.errors import LtmError
 
 
 def register(sub) -> None:
     """Add ``ltm archive`` and its verbs to the ``ltm`` subparsers ``sub``."""
     from ltmstore.cli import Parser
-    from ltmstore.solve import DEFAULT_METHOD, METHODS
 
     archive = sub.add_parser("archive", help="status, run and scheduled reprocessing of an archive",
                              description="An archive is a ROOT folder of acquisition folders, "
-                             "each with its store NAME.zarr beside it (README: Archives).")
+                             "each with its store NAME.zarr beside it (docs/archives.md).")
     verbs = archive.add_subparsers(dest="verb", required=True, metavar="VERB",
                                    parser_class=Parser)
 
@@ -24,7 +24,8 @@ def register(sub) -> None:
         grid = p.add_mutually_exclusive_group()
         grid.add_argument("--lattice", help="RxS cells over the plane (default: automatic)")
         grid.add_argument("--delta-rs", type=number, help="cell size in plane units")
-        p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *sorted(METHODS)])
+        p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *METHOD_NAMES],
+                       help="solver, as ltm reconstruct --method (default: %(default)s)")
         p.add_argument("--no-auto", action="store_true", help="fixed default regularisation")
         p.add_argument("--tile", type=int, default=32, help="pixel tile side (default: 32)")
 
@@ -33,7 +34,11 @@ def register(sub) -> None:
                        help="acquisitions processed at once (default: %(default)s)")
         p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
 
-    p = verbs.add_parser("status", help="new / stale / failed / up to date, sizes, timings")
+    p = verbs.add_parser("status", help="new / stale / failed / up to date, sizes, timings",
+                         description="List every acquisition of the archive: new (no store), "
+                         "stale (its inputs, the software or these parameters changed since its "
+                         "store was made), failed or up to date, with store sizes and timings. "
+                         "Reads only: nothing is processed.")
     common(p)
     p.add_argument("--json", action="store_true", help="JSON instead of a table")
     p.set_defaults(func=cmd_archive_status)

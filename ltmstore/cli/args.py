@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import numbers as _numbers
 import re
 from pathlib import Path
-
-import numpy as np
 
 from ltmstore.core.errors import LtmError
 
@@ -65,7 +65,10 @@ def _finite(obj):
         return {k: _finite(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
         return [_finite(v) for v in obj]
-    if isinstance(obj, float | np.floating) and not np.isfinite(obj):
+    # NumPy registers its floats as numbers.Real: no NumPy import here (the parser is built
+    # without it); an integer is always finite
+    if (isinstance(obj, _numbers.Real) and not isinstance(obj, _numbers.Integral)
+            and not math.isfinite(obj)):
         return None
     return obj
 
@@ -73,11 +76,15 @@ def _finite(obj):
 def add_output(p: argparse.ArgumentParser, default: str, what: str) -> None:
     """``-o/--output`` (a file, ``default``) and ``--overwrite``."""
     p.add_argument("-o", "--output", default=default, help=f"{what} (default: %(default)s)")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help=f"replace an existing {what}")
 
 
-def new_output(a: argparse.Namespace) -> Path:
-    """``--output``, refused when it exists and ``--overwrite`` is not given."""
+def new_output(a: argparse.Namespace, inputs: tuple = ()) -> Path:
+    """``--output``, refused when it exists and ``--overwrite`` is not given, or when it is,
+    lies in or holds one of ``inputs`` (:func:`ltmstore.core.paths.check_output`)."""
+    from ltmstore.core.paths import check_output
+
+    check_output(a.output, inputs)
     out = Path(a.output)
     if out.exists() and not a.overwrite:
         raise LtmError(f"output {str(out)!r} already exists; pass --overwrite to replace it")

@@ -19,10 +19,15 @@ def register(sub) -> None:
     p.add_argument("--square-mm", type=number, help="square side in mm (default: 30, or the "
                    "largest that fits --squares)")
     p.add_argument("--dpi", type=int, default=300, help="resolution (default: %(default)s)")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing OUTPUT and its OUT.json")
     p.set_defaults(func=cmd_board)
 
-    p = sub.add_parser("calibrate", help="phone A's camera intrinsics from a video of the board")
+    p = sub.add_parser("calibrate", help="phone A's camera intrinsics from a video of the board",
+                       description="Detect the ChArUco board of `ltm board` in the frames of a "
+                       "video filmed from varied angles and fit the camera's focal length, "
+                       "principal point and lens distortion; write them as JSON for `ltm "
+                       "track` and `ltm capture`, and print the reprojection error.")
     p.add_argument("video", help="video of the board from varied angles")
     p.add_argument("--board", required=True, help="board spec JSON from `ltm board`")
     add_output(p, "intrinsics.json", "intrinsics file")
@@ -92,7 +97,7 @@ def cmd_calibrate(a: argparse.Namespace) -> None:
     from ltmstore.capture.calibrate import calibrate_video
 
     spec = load_board(a.board)
-    out = new_output(a)
+    out = new_output(a, inputs=(a.video, a.board))
     intr, report = calibrate_video(a.video, spec)
     intr.write(out, {"calibration": report})
     print(f"reprojection error {report['reprojection_rms_px']:.3f} px RMS over "
@@ -113,7 +118,7 @@ def cmd_track(a: argparse.Namespace) -> None:
     from ltmstore.capture.board import load_board
     from ltmstore.capture.calibrate import load_intrinsics
     from ltmstore.capture.painting_track import PaintingMap, check_width, track_painting
-    from ltmstore.capture.track import TrackConfig, track
+    from ltmstore.capture.track import TrackConfig, refuse_existing, track
     from ltmstore.core.errors import LtmError
 
     if a.painting is None and a.painting_width is not None:
@@ -127,6 +132,9 @@ def cmd_track(a: argparse.Namespace) -> None:
     width = check_width(a.painting_width) if a.painting is not None else None
     if not 0 <= a.readout_ms <= 100:
         raise LtmError(f"--readout-ms {a.readout_ms:g} must be 0-100 ms (phones: 10-30)")
+    # the files only the command knows (track itself checks the video)
+    refuse_existing(a.output, a.overwrite,
+                    inputs=(a.board, a.intrinsics, a.painting, a.painting_intrinsics))
     intr = load_intrinsics(a.intrinsics)
     config = TrackConfig(led_offset=a.led_offset, max_reprojection_px=a.max_reprojection,
                          max_tilt_deg=a.max_tilt, height=a.height)

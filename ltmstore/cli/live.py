@@ -7,6 +7,7 @@ import sys
 import time
 
 from ltmstore.cli.args import number, numbers
+from ltmstore.cli.names import TARGET_RATIO
 
 DESCRIPTION = """\
 Start a small server on this computer and print two addresses (and QR codes): open the first on
@@ -35,8 +36,6 @@ carries a one-time token; requests without it get 403.
 
 def register(sub) -> None:
     """Add ``ltm capture`` to the ``ltm`` subparsers ``sub``."""
-    from ltmstore.stages.reconstruct import TARGET_RATIO
-
     p = sub.add_parser("capture", help="a capture guided live: pages for phone A and camera B",
                        description=DESCRIPTION,
                        formatter_class=argparse.RawDescriptionHelpFormatter)

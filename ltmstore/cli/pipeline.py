@@ -9,35 +9,61 @@ import warnings
 from pathlib import Path
 
 from ltmstore.cli.args import number, numbers, print_json
+from ltmstore.cli.names import (
+    CAPTURE,
+    DEFAULT_METHOD,
+    EV_LIMIT,
+    EXPOSURES,
+    METHOD_NAMES,
+    MIN_RATIO,
+    SCENES,
+    TARGET_RATIO,
+)
 from ltmstore.core.errors import LtmError, LtmWarning
+
+
+class _Recorded:
+    """`ltm evaluate --holdout-lights` without a number: the store's own (not a string, which
+    argparse would pass through ``int``)."""
+
+    def __repr__(self) -> str:
+        return "RECORDED"
+
+
+RECORDED = _Recorded()
 
 
 def register(sub) -> None:
     """Add the pipeline's commands to the ``ltm`` subparsers ``sub``."""
-    from ltmstore.core.transfer import CAPTURE, EV_LIMIT, EXPOSURES
-    from ltmstore.solve import DEFAULT_METHOD, METHODS
-    from ltmstore.stages.reconstruct import MIN_RATIO, TARGET_RATIO
-    from ltmstore.synthetic.scenes import SCENES
-
     p = sub.add_parser("demo", help="simulate, ingest, reconstruct, relight and report",
                        description="Run the whole pipeline on a simulated acquisition as a "
                        "Prefect flow on a local Dask cluster; print SNR_Y and stage times. "
                        "Its previews (relit_*.png, relight.gif) are at the capture's exposure "
                        "(photometric, as ltm relight's default).")
     p.add_argument("--out", default="ltm-demo", help="output folder (default: %(default)s)")
-    p.add_argument("--scene", default="relief", choices=SCENES)
+    p.add_argument("--scene", default="relief", choices=SCENES,
+                   help="simulated object (default: %(default)s)")
     p.add_argument("--size", type=int, default=96,
                    help="image side in pixels (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the scene, the light path and the noise "
+                   "(default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("simulate", help="write a simulated acquisition folder + truth.zarr")
+    p = sub.add_parser("simulate", help="write a simulated acquisition folder + truth.zarr",
+                       description="Render a synthetic scene under a handheld light path and "
+                       "write an acquisition folder (acquisition.json, video, poses.csv) that "
+                       "`ltm ingest` reads, with truth.zarr, the true LTM, for `ltm evaluate "
+                       "--truth`. With --raw: the two phones' raw videos instead, to make the "
+                       "acquisition with ltm calibrate, ltm track and ltm sync.")
     p.add_argument("out", help="acquisition folder to create")
     p.add_argument("--scene", required=True, help=f"one of {', '.join(SCENES)}")
     p.add_argument("--path-density", type=number, default=None,
                    help="trajectory length per unit plane area (1/m)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the scene, the light path and the noise "
+                   "(default: %(default)s)")
     p.add_argument("--lossy", action="store_true", help="mp4v .mp4 instead of lossless FFV1 .mkv")
     p.add_argument("--raw", action="store_true",
                    help="two-phone raw capture: phone A's video of the painting it lights, "
@@ -54,13 +80,18 @@ def register(sub) -> None:
     p.add_argument("--6d", dest="six_d", action="store_true",
                    help="6D: camera B moves over a view plane too (view_plane, p, q poses, "
                    "truth ltm (y, x, r, s, p, q))")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing OUT folder")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("ingest", help="acquisition folder -> store (frames, poses)")
+    p = sub.add_parser("ingest", help="acquisition folder -> store (frames, poses)",
+                       description="Decode an acquisition folder (handheld light: "
+                       "acquisition.json, camera B's video, poses.csv) into a new store: "
+                       "linear luminance and chroma frames, light positions on the plane, "
+                       "input hashes. A classic RTI capture (photographs and a .lp file) goes "
+                       "to `ltm ingest-rti` instead.")
     p.add_argument("acquisition", help="folder with acquisition.json, video, poses.csv")
     p.add_argument("store", help="Zarr store to create")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing store")
     p.add_argument("--allow-dropped-frames", action="store_true",
                    help="leave out damaged or missing video frames (counted and reported) "
                    "instead of failing")
@@ -80,17 +111,19 @@ def register(sub) -> None:
                        "with one warning line.")
     p.add_argument("lp", help="the .lp light file beside the images")
     p.add_argument("store", help="Zarr store to create")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing store")
     p.add_argument("--holdout-lights", type=int, metavar="EVERY",
                    help="leave out every EVERY-th light, as `ltm evaluate --holdout-lights` "
-                   "does, and list them (index, direction, image): `ltm relight --direction` "
-                   "at one of them writes the image to compare with its photograph")
+                   "does, list them (index, direction, image) and record them in the store "
+                   "(`ltm info` lists them, `ltm evaluate --holdout-lights` scores them): "
+                   "`ltm relight --direction` at one of them writes the image to compare with "
+                   "its photograph")
     p.set_defaults(func=cmd_ingest_rti)
 
     p = sub.add_parser("reconstruct", help="resample onto a lattice and solve every pixel",
                        description="Bin the frames onto the lattice and reconstruct every "
                        "pixel's LTF by compressive sensing, over pixel tiles on Dask.")
-    p.add_argument("store")
+    p.add_argument("store", help="store made by ltm ingest or ltm ingest-rti")
     grid = p.add_mutually_exclusive_group()
     grid.add_argument("--lattice", help="RxS cells over the plane, e.g. 32x32 (default: the "
                       f"finest lattice whose K/M reaches {TARGET_RATIO}, the paper's ratio)")
@@ -100,7 +133,7 @@ def register(sub) -> None:
                    f"below {MIN_RATIO}; refused otherwise, naming the lattice that reaches "
                    f"{TARGET_RATIO}. A lattice that cannot fit in memory or on the store's "
                    "disk is refused even so, naming its size")
-    p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *sorted(METHODS)],
+    p.add_argument("--method", default=DEFAULT_METHOD, choices=["auto", *METHOD_NAMES],
                    help="solver (default: %(default)s: per pixel tile, the method and model "
                    "size with the lowest held-out error, physical among them where "
                    "acquisition.json declares the object's extent or the capture places it "
@@ -142,7 +175,7 @@ def register(sub) -> None:
                        "light of the capture gives that photograph's (or, near lights, camera "
                        "B's video's) brightness, a dimmer light a dimmer image, --sum the sum "
                        "of the lights, clipped at white as in a camera.")
-    p.add_argument("store")
+    p.add_argument("store", help="reconstructed store (ltm reconstruct)")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--light", type=numbers("R,S"), action="append",
                        help="R,S light position in the store's coordinates (on the plane; "
@@ -165,7 +198,7 @@ def register(sub) -> None:
     p.add_argument("--ev", type=number, default=0.0, metavar="STOPS",
                    help=f"stops added to --exposure: linear light times 2**STOPS, from "
                    f"{-EV_LIMIT:g} to {EV_LIMIT:g} (default: 0)")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help="replace existing image files")
     p.set_defaults(func=cmd_relight)
 
     p = sub.add_parser("compact", help="recompress a reconstructed store and drop its frames",
@@ -175,7 +208,7 @@ def register(sub) -> None:
                        "(reconstructing again then needs a new ingest). Atomic: a failure "
                        "leaves the store as it was. A far-light store keeps its frames (it "
                        "relights from them).")
-    p.add_argument("store")
+    p.add_argument("store", help="reconstructed store, rewritten in place")
     p.add_argument("--precision", choices=("float32", "float16"), default="float32",
                    help="stored LTM precision (default: %(default)s, lossless)")
     p.add_argument("--form", choices=("dense", "factored"), default="dense",
@@ -194,18 +227,22 @@ def register(sub) -> None:
                        description="Held-out error from the data alone (observed cells left "
                        "out and predicted: works on real captures), and with --truth the "
                        "paper's SNR_Y, PSNR of relit images and per-pixel error maps.")
-    p.add_argument("store")
+    p.add_argument("store", help="reconstructed store, or one made by ingest-rti with "
+                   "--holdout-lights or --test-lights")
     p.add_argument("--truth", help="truth.zarr written by `ltm simulate`")
     p.add_argument("--maps", help="write the per-pixel error maps (needs --truth) to this PNG")
     p.add_argument("--method", help="method for the held-out test (default: the store's)")
     p.add_argument("--folds", type=int, default=5, help="held-out folds (default: %(default)s)")
     p.add_argument("--pixels", type=int, default=4096,
                    help="pixels sampled for the held-out test (default: %(default)s)")
-    p.add_argument("--holdout-lights", type=int, metavar="EVERY",
+    p.add_argument("--holdout-lights", type=int, nargs="?", const=RECORDED, metavar="EVERY",
                    help="a store made by ingest-rti: hide every EVERY-th light of its .lp, fit "
                    "the default pipeline and PTM, HSH2, HSH3, RBF, HSH3+RBF on the rest, and "
                    "score the relit images against the hidden photographs (PSNR, SSIM of "
-                   "8-bit sRGB)")
+                   "8-bit sRGB). Without EVERY: the lights `ingest-rti --holdout-lights` held "
+                   "out of this store (an EVERY that differs is refused). Without the option, "
+                   "evaluate runs the held-out cells test even on such a store, and says how "
+                   "to score its held-out photographs")
     p.add_argument("--test-lights", metavar="TEST.lp",
                    help="a store made by ingest-rti: fit on all its lights, score at the lights "
                    "and photographs of this .lp (SynthRTI: dome/ then test/)")
@@ -214,14 +251,16 @@ def register(sub) -> None:
     p = sub.add_parser("bench", help="every method: speed against accuracy, JSON and charts",
                        description="Sweep every method over scenes, path densities and lattice "
                        "sizes on simulated captures; write bench.json and PNG charts.")
-    p.add_argument("--out", default="bench/results", help="output folder (default: %(default)s)")
+    p.add_argument("--out", default="bench-out",
+                   help="output folder (default: %(default)s, which git ignores; the published "
+                   "results in bench/results are made by `python -m bench run bench`)")
     p.add_argument("--quick", action="store_true", help="a small sweep (a minute or two)")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("info", help="print a store's provenance",
                        description="Software version and commit, parameters, input sha256, "
                        "timings per stage and completion of a store (JSON).")
-    p.add_argument("store")
+    p.add_argument("store", help="store to describe")
     p.add_argument("--raw", action="store_true", help="every group attribute as stored")
     p.set_defaults(func=cmd_info)
 
@@ -260,6 +299,7 @@ def cmd_simulate_raw(a: argparse.Namespace) -> None:
 
 
 def cmd_ingest(a: argparse.Namespace) -> None:
+    refuse_classic_capture(a.acquisition, a.store)
     from ltmstore.stages.ingest import ingest
 
     print_json(ingest(a.acquisition, a.store, overwrite=a.overwrite,
@@ -267,25 +307,39 @@ def cmd_ingest(a: argparse.Namespace) -> None:
                       exposure_locked=a.exposure_locked, keep_chroma=a.keep_chroma))
 
 
+def refuse_classic_capture(acquisition: str, store: str) -> None:
+    """Point ``ltm ingest`` given a classic RTI capture (a ``.lp`` file, or a folder holding one
+    and no acquisition.json) to ``ltm ingest-rti``, with the command to run."""
+    import shlex
+
+    path = Path(acquisition)
+    try:
+        if path.is_file() and path.suffix.lower() == ".lp":
+            found = [path]
+        elif path.is_dir() and not ((path / "acquisition.json").exists()
+                                    or (path / "acquisition.json").is_symlink()):
+            found = sorted(f for f in path.iterdir()
+                           if f.suffix.lower() == ".lp" and f.is_file())
+        else:
+            return
+    except OSError:  # unreadable: ingest names the problem
+        return
+    if not found:
+        return
+    what = (f"{str(path)!r} is a classic RTI light file" if found == [path] else
+            f"{str(path)!r} holds a classic RTI capture ({found[0].name}) and no acquisition.json")
+    others = "" if len(found) == 1 else (
+        f" (it holds {len(found)} .lp files: {', '.join(f.name for f in found[:5])}"
+        f"{', ...' if len(found) > 5 else ''})")
+    raise LtmError(f"{what}: ltm ingest reads a handheld-light acquisition folder; use "
+                   f"`ltm ingest-rti {shlex.quote(str(found[0]))} {shlex.quote(str(store))}`"
+                   f"{others}")
+
+
 def cmd_ingest_rti(a: argparse.Namespace) -> None:
     from ltmstore.stages.ingest_rti import ingest_rti
 
-    if a.holdout_lights is None:
-        return print_json(ingest_rti(a.lp, a.store, overwrite=a.overwrite))
-    import numpy as np
-
-    from ltmstore.capture.lp import LpWarning, read_lp
-    from ltmstore.judge.photos import hidden_lights
-
-    with warnings.catch_warnings():  # ingest_rti reads it again and warns once
-        warnings.simplefilter("ignore", LpWarning)
-        names, directions = read_lp(a.lp)
-    hidden = hidden_lights(len(names), a.holdout_lights)
-    report = ingest_rti(a.lp, a.store, lights=np.flatnonzero(~hidden).tolist(),
-                        overwrite=a.overwrite)
-    report["held_out"] = [{"index": int(i), "direction": directions[i].tolist(),
-                           "image": names[i]} for i in np.flatnonzero(hidden)]
-    print_json(report)
+    print_json(ingest_rti(a.lp, a.store, holdout_every=a.holdout_lights, overwrite=a.overwrite))
 
 
 def cmd_reconstruct(a: argparse.Namespace) -> None:
@@ -379,7 +433,7 @@ def cmd_relight(a: argparse.Namespace) -> None:
         directions = None if a.direction is None else np.array(a.direction)
         images = relight(ds, lights, directions=directions, view=a.view)  # lazy: checks only
         outputs = image_paths(a.output, images.sizes["light"], combined=a.sum,
-                              overwrite=a.overwrite)
+                              overwrite=a.overwrite, inputs=(a.store,))
         images = (images.sum("light").values[None] if len(outputs) == 1 else images.values)
     for w in caught:
         print(f"ltm: warning: {w.message}", file=sys.stderr)
@@ -390,10 +444,12 @@ def cmd_relight(a: argparse.Namespace) -> None:
         print(f"wrote {out}")
 
 
-def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool) -> list[Path]:
+def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool,
+                inputs: tuple = ()) -> list[Path]:
     """The images of ``n`` lights: one (``combined``, or one light), else one per light named
     by ``pattern`` with ``{i}`` (or ``-i`` before the suffix); existing ones refused unless
-    ``overwrite``; a missing folder or a suffix that names no image format refused."""
+    ``overwrite``; a missing folder, a suffix that names no image format or a path in one of
+    ``inputs`` (the store) refused."""
     from ltmstore.core.imagefile import check_image_path
     from ltmstore.share.atomic import check_output
 
@@ -405,7 +461,7 @@ def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool) -> lis
     else:
         base = Path(pattern)
         paths = [base.with_name(f"{base.stem}-{i}{base.suffix}") for i in range(n)]
-    return [check_output(p, overwrite) for p in paths]
+    return [check_output(p, overwrite, inputs) for p in paths]
 
 
 def cmd_compact(a: argparse.Namespace) -> None:
@@ -433,10 +489,17 @@ def cmd_evaluate(a: argparse.Namespace) -> None:
 
     if a.holdout_lights is not None or a.test_lights is not None:
         return cmd_evaluate_photos(a)
+    import shlex
+
     from ltmstore.judge.evaluate import compare_stores
     from ltmstore.judge.heldout import heldout_store
 
-    method = open_store(a.store).attrs["stages"].get("reconstruct", {}).get("method", "cs")
+    stages = open_store(a.store).attrs["stages"]
+    if held := stages.get("ingest", {}).get("held_out"):
+        print(f"ltm: note: {a.store} holds out {len(held)} photographs (ingest-rti "
+              f"--holdout-lights {stages['ingest'].get('holdout_every')}): `ltm evaluate "
+              f"{shlex.quote(str(a.store))} --holdout-lights` scores them", file=sys.stderr)
+    method = stages.get("reconstruct", {}).get("method", "cs")
     report = {"heldout": heldout_store(a.store, method=a.method or method, folds=a.folds,
                                        max_pixels=a.pixels)}
     if a.truth:
@@ -450,15 +513,49 @@ def cmd_evaluate_photos(a: argparse.Namespace) -> None:
 
     if a.holdout_lights is not None and a.test_lights is not None:
         raise LtmError("give either --holdout-lights or --test-lights, not both")
-    lp = open_group(a.store).attrs.get("acquisition", {}).get("lp_path")
+    attrs = open_group(a.store).attrs
+    lp = attrs.get("acquisition", {}).get("lp_path")
     if lp is None:
         raise LtmError(f"store {a.store!r} records no .lp file: held-out photographs need a "
                        "store made by `ltm ingest-rti` (this version)")
-    report = heldout_photos(lp, every=a.holdout_lights, test_lp=a.test_lights)
+    every = a.holdout_lights
+    if every is not None:
+        every = recorded_holdout(a.store, attrs.get("stages", {}).get("ingest", {}), lp, every)
+    report = heldout_photos(lp, every=every, test_lp=a.test_lights)
     for name, row in report["methods"].items():
         print(f"{name:>8s}  PSNR {row['mean_psnr']:6.2f} dB  SSIM {row['mean_ssim']:.3f}",
               file=sys.stderr)
     print_json(report)
+
+
+def recorded_holdout(store: str, ingest: dict, lp: str, every: int | _Recorded) -> int:
+    """The ``--holdout-lights`` to score: the one ``ingest-rti`` recorded in the store when
+    ``every`` is :data:`RECORDED` (refused when none is) or agrees with it; a store without the
+    record takes any ``every``. Refused too when the ``.lp`` file no longer hides the recorded
+    photographs (it changed since the ingest)."""
+    import numpy as np
+
+    from ltmstore.capture.lp import LpWarning, hidden_lights, read_lp
+
+    recorded = ingest.get("holdout_every") if ingest.get("held_out") else None
+    if recorded is None:
+        if every is RECORDED:
+            raise LtmError(f"store {store!r} records no held-out lights (ingested without "
+                           "--holdout-lights): give their number, --holdout-lights EVERY")
+        return int(every)
+    if every is not RECORDED and every != recorded:
+        raise LtmError(f"--holdout-lights {every} disagrees with the store {store!r}, ingested "
+                       f"with --holdout-lights {recorded}: give {recorded} or no number")
+    with warnings.catch_warnings():  # heldout_photos reads it again and warns once
+        warnings.simplefilter("ignore", LpWarning)
+        names, _ = read_lp(lp)
+    hidden = [names[i] for i in np.flatnonzero(hidden_lights(len(names), recorded))] \
+        if recorded <= len(names) else []
+    if hidden != [light["image"] for light in ingest["held_out"]]:
+        raise LtmError(f"{lp} no longer lists the photographs store {store!r} holds out "
+                       f"({ingest['held_out'][0]['image']!r}, ...): it changed since "
+                       "`ltm ingest-rti`; ingest it again")
+    return int(recorded)
 
 
 def cmd_bench(a: argparse.Namespace) -> None:

@@ -5,13 +5,11 @@ from __future__ import annotations
 import argparse
 
 from ltmstore.cli.args import number, numbers
+from ltmstore.cli.names import COLORS, DEFAULT_QUALITY, FORMATS, HSH_ORDERS, WEB_BASES
 
 
 def register(sub) -> None:
     """Add the sharing commands to the ``ltm`` subparsers ``sub``."""
-    from ltmstore.share.export import COLORS, FORMATS, HSH_ORDERS, WEB_BASES
-    from ltmstore.share.relight_web import DEFAULT_QUALITY
-
     p = sub.add_parser("export", help="write a .ptm, .rti or Relight web folder (RTIViewer, "
                        "OpenLIME)",
                        description="Fit a PTM or HSH basis per pixel to the store's colours at "
@@ -19,9 +17,11 @@ def register(sub) -> None:
                        "HSH RTI (.rti, RTIViewer) or Relight's web format (a folder with "
                        "info.json and plane_<j>.jpg, for OpenLIME). Values are display sRGB; "
                        "the 99.5th percentile of the store's linear RGB is white.")
-    p.add_argument("store")
+    p.add_argument("store", help="reconstructed store (ltm reconstruct)")
     p.add_argument("output", help="OUT.ptm, OUT.rti, or a folder for --format relight")
-    p.add_argument("--format", dest="fmt", required=True, choices=FORMATS)
+    p.add_argument("--format", dest="fmt", required=True, choices=FORMATS,
+                   help="ptm: PTM 1.2 (.ptm); hsh: HSH RTI (.rti); relight: Relight's web "
+                   "format (a folder, for OpenLIME)")
     p.add_argument("--order", type=int, default=3, choices=HSH_ORDERS,
                    help="hsh: 2 (9 terms) or 3 (16 terms) (default: %(default)s)")
     p.add_argument("--basis", default="ptm", choices=WEB_BASES,
@@ -31,7 +31,7 @@ def register(sub) -> None:
                    "(default: %(default)s)")
     p.add_argument("--quality", type=int, default=DEFAULT_QUALITY,
                    help="relight: JPEG quality of the planes (default: %(default)s)")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing OUTPUT")
     p.set_defaults(func=cmd_export)
     register_maps(sub)
     register_view(sub)
@@ -63,7 +63,7 @@ def register_maps(sub) -> None:
                        "albedo map's exposure. Exposure: these images are scaled for display "
                        "(each map to its own white, the material images to the albedo map's), "
                        "not written at the capture's exposure as ltm relight's are.")
-    p.add_argument("store")
+    p.add_argument("store", help="far-light store reconstructed with --method physical")
     p.add_argument("output", metavar="OUT_DIR", help="folder to create")
     p.add_argument("--direction", type=numbers("LX,LY,LZ", "a direction"), action="append",
                    metavar="LX,LY,LZ", help="direction towards the light (normalised; lz > 0) "
@@ -98,7 +98,7 @@ def register_view(sub) -> None:
                        "store is relit with the light under the pointer: zoom and pan, point or "
                        "area light, the view of a 6D store, the expected_error map. Prints the "
                        "URL; Ctrl-C stops.")
-    p.add_argument("store")
+    p.add_argument("store", help="reconstructed store (ltm reconstruct)")
     p.add_argument("--port", type=int, default=0, help="port (default: a free one)")
     p.add_argument("--host", default="127.0.0.1",
                    help="loopback address to bind: 127.0.0.1, localhost or ::1 (default: "

@@ -6,6 +6,12 @@ returning a wrong value. Every chunk is written, even one that holds only the fi
 missing chunk file is damage too (:mod:`ltmstore.core.integrity` finds it, and the rest of what
 shows without reading). Stores written before this carry no checksums: they still open,
 and only their missing metadata can be found.
+
+A CRC32C says a chunk's bytes are those written, not that they lie where they were written: a
+chunk moved, swapped with another or taken from another store passes its own check.
+:func:`stored` (the CRC32Cs one stored part holds, read without its data) and :func:`damage_of`
+(those CRC32Cs checked against the bytes, without decompressing them) are what
+:mod:`ltmstore.core.integrity` keys by array and chunk to find them.
 """
 
 from __future__ import annotations
@@ -13,9 +19,13 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import os
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
+import google_crc32c  # zarr's crc32c codec computes with it
+import numpy as np
 import zarr
 from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
@@ -125,3 +135,80 @@ def is_checksum_error(exc: Exception) -> bool:
 def _reason(exc: Exception) -> str:
     text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     return "checksum mismatch" if is_checksum_error(exc) else text[:120]
+
+
+@dataclass(frozen=True)
+class ShardIndex:
+    """The index of a shard (Zarr's ``sharding_indexed``): ``chunks`` inner chunks, each an
+    ``(offset, nbytes)`` pair of little-endian uint64, at the end of the shard (or at its start),
+    followed by a CRC32C where ``crc``; ``inner_crc``: each inner chunk ends with one."""
+
+    chunks: int
+    at_end: bool = True
+    crc: bool = True
+    inner_crc: bool = True
+
+    @property
+    def nbytes(self) -> int:
+        return 16 * self.chunks + 4 * self.crc
+
+    def entries(self, index: bytes) -> list[tuple[int, int]]:
+        """``(offset, nbytes)`` of every inner chunk that is stored (not the all-ones pair of
+        one that is not)."""
+        pairs = np.frombuffer(index[: 16 * self.chunks], "<u8").reshape(-1, 2)
+        return [(int(o), int(n)) for o, n in pairs[~(pairs == np.iinfo(np.uint64).max).all(1)]]
+
+
+def _crc_holds(data: np.ndarray) -> bool:
+    """Whether the bytes ``data`` (uint8) end with the CRC32C of those before it (as Zarr's codec
+    writes it)."""
+    return len(data) >= 4 and google_crc32c.value(data[:-4]) == int.from_bytes(
+        data[-4:].tobytes(), "little")
+
+
+def stored(read: Callable[[int, int], bytes], size: int, index: ShardIndex | None) -> bytes:
+    """The CRC32Cs one stored part holds, without its data: its last 4 bytes (a chunk's CRC32C,
+    the last codec ltmstore writes), or a shard's index and the last 4 bytes of every inner chunk
+    it names. ``read(offset, n)`` reads the part's bytes, ``size`` is its length."""
+    if index is None:
+        return read(max(size - 4, 0), 4)
+    raw = read(size - index.nbytes if index.at_end else 0, index.nbytes)
+    if len(raw) < index.nbytes:
+        return raw
+    return raw + b"".join(read(o + n - 4, 4) for o, n in index.entries(raw)
+                          if 4 <= n and o + n <= size)
+
+
+def stored_in_file(path: str | os.PathLike, index: ShardIndex | None) -> bytes:
+    """:func:`stored` of the file at ``path`` (a few small reads; the data is not read)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        size = os.fstat(fd).st_size
+        return stored(lambda offset, n: os.pread(fd, n, max(offset, 0)), size, index)
+    finally:
+        os.close(fd)
+
+
+def stored_in_bytes(data: bytes, index: ShardIndex | None) -> bytes:
+    """:func:`stored` of a part read whole (``data``)."""
+    return stored(lambda offset, n: data[max(offset, 0): max(offset, 0) + n], len(data), index)
+
+
+def damage_of(data: bytes, index: ShardIndex | None) -> str | None:
+    """Why the CRC32Cs stored in one part's bytes ``data`` (of a checksummed array) do not hold,
+    or None: each one checked against the bytes it covers, nothing decompressed."""
+    view = np.frombuffer(data, np.uint8)  # slices without copies
+    if index is None:
+        return None if _crc_holds(view) else "checksum mismatch"
+    if len(data) < index.nbytes:
+        return f"shard of {len(data)} bytes holds no index of {index.nbytes} bytes"
+    start = len(data) - index.nbytes if index.at_end else 0
+    raw = view[start: start + index.nbytes]
+    if index.crc and not _crc_holds(raw):
+        return "checksum mismatch (shard index)"
+    for offset, n in index.entries(raw.tobytes()):
+        if offset + n > len(data):
+            return "a chunk its index names lies past the end of the shard"
+        if index.inner_crc and not _crc_holds(view[offset: offset + n]):
+            return "checksum mismatch"
+    return None

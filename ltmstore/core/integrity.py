@@ -14,24 +14,38 @@ image is made:
   data type, chunk shape or codec that does not describe the bytes shows there);
 * the variables the completed stages wrote are there (:func:`required`): ``r``, ``ltm_cb``,
   a far store's ``normal`` or ``exposure`` ...; and every dimension with a coordinate has it;
-* every dimension has one size across the store, and the lattice the stage records name.
+* every dimension has one size across the store, and the lattice the stage records name;
+* no array carries an attribute that xarray's CF decoding applies to its values
+  (:data:`CF_DECODED`: ``scale_factor``, ``add_offset``, ``_FillValue`` ...), which ltmstore
+  never writes: plain ``xarray.open_zarr`` would return other values than those stored;
+* each array is what the stage that wrote it recorded (:func:`record`, in the group attribute
+  :data:`WRITTEN`, written by :func:`ltmstore.core.store.complete_stage`): every key of its
+  ``zarr.json`` and every attribute (one added, removed or changed is named), and the stored
+  CRC32C of every part at its key, so that a chunk moved, swapped with another, or taken from
+  another store is named although its own checksum holds. :func:`inspect` reads the last 4 bytes
+  of each part (a shard's index checksum); ``ltm check`` and ``ltm info`` (:func:`data_damage`)
+  also the checksum of every inner chunk of a shard.
 
 Stores written before ltmstore checksummed its chunks (no CRC32C anywhere) are held only to the
-layout, sizes and coordinates: which variables they must hold is not known.
+layout, sizes and coordinates: which variables they must hold is not known. Stores written before
+it recorded what each stage wrote (no :data:`WRITTEN`), and arrays written by hand after the
+stages completed (a notebook's), are held to the rest: what only a record shows is reported as
+not verified (:attr:`Report.unverified`), never as damage.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Collection, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import zarr
 
-from ltmstore.core import factored
+from ltmstore.core import checksum, factored
 from ltmstore.core.checksum import is_checksum_error
 
 COORDINATES = ("t", "y", "x", "r", "s", "p", "q", "channel", "color", "component")
@@ -40,6 +54,16 @@ SURFACE_PREFIX = "physical+"  # a far store's surface blend (ltmstore.stages.sur
 FRAME_VARIABLES = ("frames", "frame_chroma")  # what `ltm compact` may drop
 LATTICES = (("r", "s"), ("r", "s", "p", "q"))
 F16, F32, F64 = "float16", "float32", "float64"
+# The group attribute that records, per array, what the stage that wrote it wrote (:func:`record`).
+WRITTEN = "written"
+# Array attributes that xarray's CF decoding (open_zarr's defaults) applies to the values: a scale,
+# an offset, masked values, an unsigned view, booleans, characters, times (``units`` "... since
+# ...", :func:`cf_damage`). ltmstore writes none of them; its readers decode none of them.
+CF_DECODED = ("scale_factor", "add_offset", "_FillValue", "missing_value", "_Unsigned", "dtype",
+              "calendar", "_Encoding", "coordinates")
+NOT_RECORDED = ("records nothing of how these arrays were written (a store written before "
+                "ltmstore recorded it, or arrays added by hand after its stages completed): "
+                "their attributes and chunk places are not verified")
 
 
 def _layout() -> dict[str, tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]]:
@@ -99,10 +123,23 @@ class Meta:
     part: tuple[int, ...]  # the shape of a stored part: a shard, or a chunk
     codecs: tuple[dict, ...]
     key_encoding: dict
+    doc: dict = field(default_factory=dict, compare=False, repr=False)  # the parsed zarr.json
 
     @property
     def name(self) -> str:
         return self.folder.name
+
+    def shard_index(self) -> checksum.ShardIndex | None:
+        """The index of the array's shards (None when it is not sharded)."""
+        if _codec_names(self.codecs) != ["sharding_indexed"]:
+            return None
+        config = self.codecs[0].get("configuration", {})
+        inner = config.get("chunk_shape") or self.part
+        chunk, index = _chain(self)
+        return checksum.ShardIndex(
+            math.prod(-(-p // max(int(i), 1)) for p, i in zip(self.part, inner, strict=False)),
+            at_end=config.get("index_location", "end") == "end",
+            crc="crc32c" in _codec_names(index), inner_crc="crc32c" in _codec_names(chunk))
 
     def keys(self) -> Iterator[str]:
         """The key of every stored part of the array (``name/c/i/j...``)."""
@@ -120,11 +157,12 @@ class Meta:
 
 @dataclass(frozen=True)
 class Report:
-    """What :func:`inspect` found: one line per damaged part, and the arrays whose metadata is
-    damaged (not to be read)."""
+    """What :func:`inspect` found: one line per damaged part, the arrays whose metadata is
+    damaged (not to be read), and those whose writing no record describes (:data:`WRITTEN`)."""
 
     lines: list[str]
     broken: set[str]
+    unverified: list[str] = field(default_factory=list)
 
 
 def read_meta(folder: Path) -> Meta | str:
@@ -138,7 +176,7 @@ def read_meta(folder: Path) -> Meta | str:
         return Meta(folder, tuple(int(n) for n in meta["shape"]),
                     dtype if isinstance(dtype, str) else json.dumps(dtype),
                     tuple(meta.get("dimension_names") or ()), tuple(int(n) for n in grid),
-                    tuple(meta["codecs"]), meta.get("chunk_key_encoding", {}))
+                    tuple(meta["codecs"]), meta.get("chunk_key_encoding", {}), meta)
     except FileNotFoundError:
         return f"{where} is missing"
     except IsADirectoryError:
@@ -236,9 +274,10 @@ def _files(folder: Path) -> dict[str, int]:
     return found
 
 
-def chunk_damage(root: Path, meta: Meta) -> list[str]:
-    """Stored parts of an array that are missing, empty, folders, or outside its grid."""
-    files = _files(root / meta.name)
+def chunk_damage(root: Path, meta: Meta, files: dict[str, int] | None = None) -> list[str]:
+    """Stored parts of an array that are missing, empty, folders, or outside its grid
+    (``files``: :func:`_files` of the array, when already listed)."""
+    files = dict(_files(root / meta.name) if files is None else files)
     found = []
     for key in meta.keys():
         size = files.pop(key, None)
@@ -269,6 +308,136 @@ def probe_damage(meta: Meta) -> list[str]:
             return [f"{next(meta.keys())} fails its check (checksum mismatch)"]
         return [f"{meta.name}/zarr.json does not describe its first chunk ({text})"]
     return []
+
+
+def _digest(value: object) -> str:
+    """A short digest of a JSON value (its canonical text)."""
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _split(meta: Meta) -> tuple[dict, dict]:
+    """An array's ``zarr.json``: its keys but the attributes, and its attributes."""
+    doc = dict(meta.doc)
+    attrs = doc.pop("attributes", None)
+    return doc, attrs if isinstance(attrs, dict) else {}
+
+
+def _parts(meta: Meta, files: dict[str, int]) -> str:
+    """Digest of every part of an array: its key, size and last 4 bytes (the CRC32C of a
+    chunk, the index checksum of a shard). One small read per part."""
+    hashed = hashlib.sha256()
+    for key in sorted(files):
+        try:
+            tail = checksum.stored_in_file(meta.folder.parent / key, None).hex()
+        except OSError as exc:
+            tail = type(exc).__name__
+        hashed.update(f"{key.partition('/')[2]} {files[key]} {tail}\n".encode())
+    return hashed.hexdigest()[:16]
+
+
+def _chunks(meta: Meta, stored: dict[str, bytes]) -> str:
+    """Digest of the CRC32C of every chunk (inside each shard) of an array at its key
+    (``stored``: :func:`ltmstore.core.checksum.stored` of each part)."""
+    hashed = hashlib.sha256()
+    for key in sorted(stored):
+        hashed.update(f"{key.partition('/')[2]} {stored[key].hex()}\n".encode())
+    return hashed.hexdigest()[:16]
+
+
+def _stored_in_files(meta: Meta, files: dict[str, int]) -> dict[str, bytes]:
+    index = meta.shard_index()
+    out = {}
+    for key in files:
+        try:
+            out[key] = checksum.stored_in_file(meta.folder.parent / key, index)
+        except OSError as exc:
+            out[key] = type(exc).__name__.encode()
+    return out
+
+
+def record(folder: Path, stage: str) -> dict | None:
+    """What ``stage`` wrote in the array at ``folder`` (None where its metadata cannot be read):
+    a digest of its ``zarr.json`` but the attributes, of each of its attributes, of its parts' keys,
+    sizes and CRC32Cs (:func:`_parts`), and, when sharded, of every inner chunk's CRC32C at its
+    key (:func:`_chunks`). Small reads only: the data is not read again."""
+    meta = read_meta(folder)
+    if isinstance(meta, str):
+        return None
+    doc, attrs = _split(meta)
+    files = _files(folder)
+    entry = {"stage": stage, "metadata": _digest(doc),
+             "attributes": {k: _digest(v) for k, v in attrs.items()},
+             "parts": _parts(meta, files)}
+    if meta.shard_index() is not None:
+        entry["chunks"] = _chunks(meta, _stored_in_files(meta, files))
+    return entry
+
+
+def recorded(root: Path, records: dict, stage: str, names: Collection[str] | None) -> dict:
+    """:data:`WRITTEN` of the store at ``root`` once ``stage`` completes: the records of
+    ``records`` for arrays still there, and new ones (:func:`record`) for the arrays ``names``
+    the stage wrote (every array where None), every coordinate, and every array not recorded yet
+    (as in a store written before ltmstore recorded them)."""
+    out = {}
+    for folder in _folders(root):
+        name = folder.name
+        kept = records.get(name) if isinstance(records, dict) else None
+        if kept is None or names is None or name in names or name in COORDINATES:
+            kept = record(folder, stage)
+        if kept is not None:
+            out[name] = kept
+    return out
+
+
+def _cf(key: str, value: object) -> bool:
+    """Whether xarray's CF decoding applies the attribute ``key: value`` to the values."""
+    return key in CF_DECODED or (key == "units" and "since" in str(value))
+
+
+def cf_damage(meta: Meta) -> list[str]:
+    """Attributes of an array that xarray's CF decoding applies to its values (:data:`CF_DECODED`),
+    none of which ltmstore writes: plain ``xarray.open_zarr`` would not return what is stored."""
+    _, attrs = _split(meta)
+    return [f"{meta.name}/zarr.json: attribute {key!r}, which ltmstore never writes (xarray's CF "
+            "decoding applies it to the values)" for key in attrs if _cf(key, attrs[key])]
+
+
+def record_damage(meta: Meta, entry: dict) -> list[str]:
+    """The metadata of an array's ``zarr.json``, and each attribute, that differ from what the
+    stage that wrote it recorded (:func:`record`): an attribute added, missing or changed."""
+    stage = entry.get("stage", "?")
+    where = f"{meta.name}/zarr.json"
+    doc, now = _split(meta)
+    found = []
+    if _digest(doc) != entry.get("metadata"):
+        found.append(f"{where}: its metadata (shape, chunks, codecs, fill value ...) is not "
+                     f"what the {stage} stage wrote")
+    wrote = entry.get("attributes")
+    wrote = wrote if isinstance(wrote, dict) else {}
+    for key in sorted(set(now) | set(wrote)):
+        if key not in wrote:
+            cf = " (xarray's CF decoding applies it to the values)" if _cf(key, now[key]) else ""
+            found.append(f"{where}: attribute {key!r} was added after the {stage} stage wrote "
+                         f"the array{cf}")
+        elif key not in now:
+            found.append(f"{where}: attribute {key!r} is missing (the {stage} stage wrote it)")
+        elif _digest(now[key]) != wrote[key]:
+            found.append(f"{where}: attribute {key!r} is not what the {stage} stage wrote")
+    return found
+
+
+def _misplaced(meta: Meta, stage: str) -> str:
+    return (f"{meta.name}/c holds chunks the {stage} stage did not write there (moved, swapped "
+            "with others, or from another store)")
+
+
+def parts_damage(meta: Meta, entry: dict, files: dict[str, int]) -> list[str]:
+    """Whether the parts of an array hold, at each key, the CRC32C (a shard: the index checksum)
+    that the stage that wrote it recorded there."""
+    if _parts(meta, files) == entry.get("parts"):
+        return []
+    return [_misplaced(meta, entry.get("stage", "?"))]
 
 
 def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
@@ -364,10 +533,11 @@ def inspect(root: Path, attrs: dict, *, complete: Callable[[str], bool]) -> Repo
     root : Path
         The store folder (its group metadata already read: ``attrs``).
     attrs : dict
-        The group attributes (stage records, acquisition).
+        The group attributes (stage records, acquisition, :data:`WRITTEN`).
     complete : callable
         ``complete(name)``: whether variable ``name`` belongs to no stage or to a completed one
-        (only those must hold every part, and be consistent with the rest).
+        (only those must hold every part, be consistent with the rest, and be what their stage
+        recorded writing).
     """
     lines, broken, metas = [], set(), {}
     for folder in _folders(root):
@@ -378,10 +548,21 @@ def inspect(root: Path, attrs: dict, *, complete: Callable[[str], bool]) -> Repo
         else:
             metas[folder.name] = meta
     checksummed = any(has_checksum(m) for m in metas.values())
+    records, problem = _records(attrs)
+    lines += [problem] if problem else []
+    unrecorded = []
     for name, meta in metas.items():
+        entry = records.get(name) if complete(name) else None
         found = layout_damage(meta, checksummed)
-        if not found and complete(name) and checksummed:
-            found = chunk_damage(root, meta)
+        if not found:
+            found = record_damage(meta, entry) if entry else cf_damage(meta)
+        if not found and complete(name):
+            files = _files(meta.folder)
+            found = chunk_damage(root, meta, files) if checksummed else []
+            if not found and entry:
+                found = parts_damage(meta, entry, files)
+            elif not found:
+                unrecorded.append(name)
         lines += found
         broken |= {name} if found else set()
     usable = {n: m for n, m in metas.items() if complete(n) and n not in broken}
@@ -394,7 +575,78 @@ def inspect(root: Path, attrs: dict, *, complete: Callable[[str], bool]) -> Repo
     dims = {d for n, m in usable.items() for d in m.dims}
     lines += [f"{d} is missing (the coordinate of dimension {d})" for d in COORDINATES
               if d in dims and d not in present]
-    return Report(lines, broken)
+    return Report(lines, broken, unrecorded)
+
+
+def _records(attrs: dict) -> tuple[dict, str | None]:
+    """The records of :data:`WRITTEN` (empty in a store written before them), or why they
+    cannot be read."""
+    records = attrs.get(WRITTEN, {})
+    if isinstance(records, dict) and all(isinstance(e, dict) for e in records.values()):
+        return records, None
+    return {}, f"zarr.json: its attribute {WRITTEN!r} (what each stage wrote) cannot be read"
+
+
+def _data_pass(meta: Meta, files: dict[str, int]) -> tuple[list[str], dict[str, bytes]]:
+    """Read every part of an array whole: the CRC32Cs that do not hold
+    (:func:`ltmstore.core.checksum.damage_of`, nothing decompressed), and those stored at each
+    key (:func:`ltmstore.core.checksum.stored`)."""
+    index, found, stored = meta.shard_index(), [], {}
+    for key in sorted(files):
+        try:
+            data = (meta.folder.parent / key).read_bytes()
+        except OSError as exc:
+            found.append(f"{key} cannot be read ({exc.strerror or type(exc).__name__})")
+            continue
+        why = checksum.damage_of(data, index)
+        if why:
+            found.append(f"{key} fails its check ({why})")
+        stored[key] = checksum.stored_in_bytes(data, index)
+    return found, stored
+
+
+def data_damage(root: Path, attrs: dict, report: Report, *,
+                complete: Callable[[str], bool]) -> list[str]:
+    """The damage only reading every byte shows, as ``ltm check`` finds it (for ``ltm info``:
+    a store it names damaged is never complete).
+
+    Each array recorded in :data:`WRITTEN` and checksummed is read whole, its CRC32Cs checked
+    against its bytes (nothing decompressed: the records already hold its metadata to what was
+    written, and the CRC32C of each chunk to its key); every other array is read as ``ltm check``
+    reads it (:func:`ltmstore.core.checksum.verify`: each part decoded).
+    """
+    records, _ = _records(attrs)
+    found = []
+    for folder in _folders(root):
+        meta = read_meta(folder)
+        if folder.name in report.broken or isinstance(meta, str):
+            continue
+        entry = records.get(meta.name) if complete(meta.name) else None
+        if entry is None or not has_checksum(meta):
+            found += checksum.verify(root, [meta.name])[0]
+            continue
+        lines, stored = _data_pass(meta, _files(folder))
+        found += lines
+        if not lines and "chunks" in entry and _chunks(meta, stored) != entry["chunks"]:
+            found.append(_misplaced(meta, entry.get("stage", "?")))
+    return found
+
+
+def shard_damage(root: Path, attrs: dict, report: Report, *,
+                 complete: Callable[[str], bool]) -> list[str]:
+    """(``ltm check``, which decodes every chunk besides) The sharded arrays whose inner chunks
+    do not hold, at each key, the CRC32C the stage that wrote them recorded there: the index and
+    the last 4 bytes of each inner chunk read (:func:`_chunks`), not their data."""
+    records, _ = _records(attrs)
+    found = []
+    for name, entry in records.items():
+        meta = read_meta(root / name)
+        if (name in report.broken or not complete(name) or isinstance(meta, str)
+                or "chunks" not in entry):
+            continue
+        if _chunks(meta, _stored_in_files(meta, _files(meta.folder))) != entry["chunks"]:
+            found.append(_misplaced(meta, entry.get("stage", "?")))
+    return found
 
 
 def _folders(root: Path) -> Iterator[Path]:

@@ -82,7 +82,9 @@ def summary(attrs: dict) -> dict:
         surface model placed the object, declared or estimated, with the estimate's
         uncertainty), ``frames`` (of ingest: how many, how
         many valid, rejected per reason, e.g. ``occluded``, and dropped from a damaged video;
-        ``stored: false`` once ``ltm compact`` removed them), ``compact`` (when the store was
+        ``stored: false`` once ``ltm compact`` removed them), ``holdout_every`` and ``held_out``
+        (a classic capture ingested with ``--holdout-lights EVERY``: the photographs left out,
+        each with its ``index``, ``image`` and ``direction``), ``compact`` (when the store was
         compacted: precision, SNR of a lossy LTM, whether frames were dropped),
         ``timings`` (seconds per stage) and ``stages`` (started/finished/complete per stage).
     """
@@ -114,6 +116,8 @@ def summary(attrs: dict) -> dict:
                                               "dropped_frames") if k in ingest},
                    **({"stored": False, "removed_by": "ltm compact"}
                       if compact.get("frames_dropped") else {})},
+        **({k: ingest[k] for k in ("holdout_every", "held_out")} if ingest.get("held_out")
+           else {}),
         **({"compact": {k: compact[k] for k in ("precision", "form", "snr_db", "target_db",
                                                 "rank_rule", "heldout_fraction",
                                                 "tile", "ranks", "factor_bytes",

@@ -29,8 +29,9 @@ from ltmstore.core import checksum, factored, integrity
 from ltmstore.core.dims import CHROMA_SAMPLES, SAMPLES
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lock import locked
+from ltmstore.core.paths import check_output
 from ltmstore.core.provenance import software, summary
-from ltmstore.core.swap import journal_path, recover, swap_in
+from ltmstore.core.swap import SwapJournalError, check_journal, journal_path, recover, swap_in
 
 if TYPE_CHECKING:  # xarray loads in open_store: writing a store does not need it
     import xarray as xr
@@ -54,6 +55,9 @@ STAGE_VARIABLES = {
                       for part in (factored.WEIGHTS, factored.BASIS, factored.RANKS,
                                    factored.TILE_WEIGHTS, factored.TILE_BASIS))),
 }
+# The arrays each stage (re)writes, besides coordinates (:func:`complete_stage` records what it
+# wrote in them): ``ltm compact`` rewrites the LTM variables. Any other stage: every array.
+RECORDED_BY = {**STAGE_VARIABLES, "compact": STAGE_VARIABLES["reconstruct"]}
 # The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
 LTM_VARIABLES = ("ltm", "ltm_cb", "ltm_cr", "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light")
@@ -70,20 +74,23 @@ def new_store(path: str | os.PathLike, *, overwrite: bool = False,
     """Create a store at ``path`` atomically: build it beside, then move it into place.
 
     Refuses an existing path unless ``overwrite``, and even then anything but a store made by
-    this program, or a path that holds one of ``inputs``. Holds the store's write lock
-    (:func:`ltmstore.core.lock.locked`) throughout; partial stores that dead processes left
-    beside it are removed first. If the body raises, nothing is left at ``path`` and an existing
-    store there is untouched.
+    this program; refuses a path that is one of ``inputs``, lies inside one or holds one
+    (:func:`ltmstore.core.paths.check_output`), before anything is written. Holds the store's
+    write lock (:func:`ltmstore.core.lock.locked`) throughout; partial stores that dead
+    processes left beside it are removed first. If the body raises, nothing is left at
+    ``path`` and an existing store there is untouched.
     """
+    check_output(path, inputs, what="store")  # before the lock file: nothing in an input
     path = Path(os.path.abspath(path))
     parent = path.parent
     if not parent.is_dir():
         raise LtmError(f"cannot create store {str(path)!r}: folder {str(parent)!r} does not exist")
     if not os.access(parent, os.W_OK):
         raise LtmError(f"cannot create store {str(path)!r}: folder {str(parent)!r} is not writable")
+    check_journal(path)
     with locked(path):
         recover(path)
-        _check_replaceable(path, overwrite=overwrite, inputs=inputs)
+        _check_replaceable(path, overwrite=overwrite)
         remove_leftovers(path)
         tmp = parent / f".{path.name}.partial-{os.getpid()}"
         try:
@@ -129,14 +136,8 @@ def _discard(folder: Path) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
-def _check_replaceable(path: Path, *, overwrite: bool,
-                       inputs: Sequence[str | os.PathLike]) -> None:
-    """Refuse to build a store at ``path`` over anything that is not one of ours, or an input."""
-    for source in inputs:
-        source = Path(os.path.abspath(source))
-        if source == path or path in source.parents:
-            raise LtmError(f"store {str(path)!r} would replace the input {str(source)!r}; "
-                           "choose a store path outside the inputs")
+def _check_replaceable(path: Path, *, overwrite: bool) -> None:
+    """Refuse to build a store at ``path`` over anything that is not one of ours."""
     if not (path.exists() or path.is_symlink()):
         return
     if not overwrite:
@@ -164,6 +165,7 @@ def writing(path: str | os.PathLike) -> Iterator[Path]:
     Yields the store's resolved path (through symbolic links): where its swaps happen.
     """
     path = Path(os.path.realpath(path))
+    check_journal(path)  # a journal that does not match its folder: refused, nothing touched
     with locked(path):
         recover(path)
         remove_leftovers(path)
@@ -177,7 +179,9 @@ def _recover_unlocked(path: Path) -> None:
         try:
             with writing(path):
                 pass
-        except LtmError:
+        except SwapJournalError:  # one that does not match its folder: said, never skipped
+            raise
+        except LtmError:  # a live writer holds the store
             pass
 
 
@@ -389,7 +393,13 @@ def begin_stage(group: zarr.Group, stage: str, info: dict | None = None) -> None
 
 
 def complete_stage(group: zarr.Group, stage: str, info: dict) -> None:
-    """Record ``info`` for ``stage`` and mark it complete: always the last write of a stage."""
+    """Record ``info`` for ``stage`` and mark it complete: always the last write of a stage.
+
+    With it, what the stage wrote in each array (:data:`RECORDED_BY`), as
+    :func:`ltmstore.core.integrity.recorded` records it (group attribute
+    :data:`ltmstore.core.integrity.WRITTEN`): what ``ltm check`` and every reader hold the
+    arrays to.
+    """
     soft = software()
     st = stages(group)
     entry = dict(st.get(stage, {}))
@@ -397,7 +407,13 @@ def complete_stage(group: zarr.Group, stage: str, info: dict) -> None:
     entry.update({"complete": True, "finished": _now(),
                   "software": f"ltmstore {soft['version']}", "commit": soft["commit"]})
     st[stage] = entry
-    group.attrs[STAGES_ATTR] = st
+    update = {STAGES_ATTR: st}
+    root = getattr(group.store, "root", None)  # a local store (not one in memory)
+    if root is not None:
+        update[integrity.WRITTEN] = integrity.recorded(
+            Path(root) / group.path, group.attrs.get(integrity.WRITTEN, {}), stage,
+            RECORDED_BY.get(stage))
+    group.attrs.update(update)
 
 
 def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dict:
@@ -419,6 +435,11 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
 
     ``path`` may also be a Zarr store object (e.g. a :class:`CountingStore`). Variables of
     stages that did not complete are dropped, so partial results are never served.
+
+    The values are those stored: xarray's CF decoding is off (``decode_cf=False``), so an
+    attribute such as ``scale_factor`` or ``_FillValue`` changes nothing read (ltmstore writes
+    none; :func:`ltmstore.core.integrity.cf_damage` names one as damage), and a missing value is
+    what ltmstore writes for it, the NaN fill value of its float arrays, read as it is.
     """
     import xarray as xr
 
@@ -429,7 +450,7 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
             warnings.warn(f"store {str(path)!r} {checksum.NO_CHECKSUMS}", NoChecksumWarning,
                           stacklevel=2)
     ds = xr.open_zarr(path if isinstance(path, Store) else str(path), consolidated=False,
-                      chunks={})
+                      chunks={}, decode_cf=False)
     incomplete = {
         name
         for stage, entry in stages(group).items()
@@ -446,7 +467,7 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
             ds[name] = ds[name].astype(np.float32)
             ds[name].encoding = encoding
     ds = _derive_factored(ds, group)
-    ds.attrs = dict(group.attrs.asdict())
+    ds.attrs = {k: v for k, v in group.attrs.asdict().items() if k != integrity.WRITTEN}
     ds.encoding["source"] = path  # where readers of the stored factors find them
     return ds
 
@@ -478,8 +499,12 @@ def _derive_factored(ds: xr.Dataset, group: zarr.Group) -> xr.Dataset:
 def store_summary(path: str | os.PathLike) -> dict:
     """:func:`summary` of the store at ``path`` (a clear error when it is not a store).
 
-    A store with missing parts or unreadable metadata (:func:`damage`) is never ``complete``;
-    ``damaged`` lists what is wrong.
+    A store that ``ltm check`` (:func:`verify_store`) would call damaged is never ``complete``;
+    ``damaged`` lists what is wrong. What shows without reading data is looked for first
+    (:func:`damage`); a store complete so far then has every byte read
+    (:func:`ltmstore.core.integrity.data_damage`: each CRC32C checked against its bytes and
+    its key, nothing decompressed, in the arrays whose writing the store records; the others
+    decoded as ``ltm check`` decodes them).
     """
     try:
         group = open_group(path)
@@ -487,7 +512,11 @@ def store_summary(path: str | os.PathLike) -> dict:
     except (OSError, ValueError) as exc:
         raise LtmError(f"store {str(path)!r} cannot be read: {exc}") from exc
     info = {"store": str(path), **summary(attrs), "checksums": checksummed(Path(path))}
-    damaged = damage(Path(path), group)
+    found = _inspect(Path(path), group)
+    damaged = found.lines
+    if not damaged and info.get("complete"):
+        damaged = integrity.data_damage(Path(path), attrs, found,
+                                        complete=_complete_variables(group))
     if damaged:
         info.update(complete=False, damaged=damaged)
     return info
@@ -534,15 +563,19 @@ def verify_store(path: str | os.PathLike, *, progress: bool = True) -> dict:
     Returns
     -------
     dict
-        ``store``, ``parts`` (how many were read), ``damaged`` (one line per damaged part) and
-        ``unchecked`` (variables written without checksums).
+        ``store``, ``parts`` (how many were read), ``damaged`` (one line per damaged part),
+        ``unchecked`` (variables written without checksums) and ``unverified`` (variables whose
+        attributes and chunk places no record holds: those of a store written before ltmstore
+        recorded what its stages wrote, or added by hand after,
+        :data:`ltmstore.core.integrity.NOT_RECORDED`).
     """
     from tqdm.auto import tqdm
 
     path = Path(path)
     problem = checksum.group_damage(path) if (path / "zarr.json").exists() else None
     if problem:
-        return {"store": str(path), "parts": 0, "damaged": [problem], "unchecked": []}
+        return {"store": str(path), "parts": 0, "damaged": [problem], "unchecked": [],
+                "unverified": []}
     group = open_group(path)
     found = _inspect(path, group)
     readable = [name for name, _ in checksum.arrays(path) if name not in found.broken]
@@ -551,5 +584,9 @@ def verify_store(path: str | os.PathLike, *, progress: bool = True) -> dict:
         damaged, unchecked = checksum.verify(path, readable, advance=bar.update)
     if checksummed(path):  # an array without checksums among checksummed ones is damage
         unchecked = []
-    return {"store": str(path), "parts": bar.n, "damaged": found.lines + damaged,
-            "unchecked": unchecked}
+    failed = found.broken | {line.partition("/")[0] for line in damaged}  # read, not placed
+    misplaced = integrity.shard_damage(path, group.attrs.asdict(),
+                                       integrity.Report(found.lines, failed),
+                                       complete=_complete_variables(group))
+    return {"store": str(path), "parts": bar.n, "damaged": found.lines + damaged + misplaced,
+            "unchecked": unchecked, "unverified": found.unverified}

@@ -19,6 +19,7 @@ import xarray as xr
 
 from ltmstore.core.dims import LIGHT_DIMS, LTM, X, Y
 from ltmstore.core.errors import LtmError
+from ltmstore.core.paths import check_output
 from ltmstore.core.store import open_store
 from ltmstore.stages.relight import linear_position
 
@@ -282,7 +283,9 @@ def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -
     store, truth : path-like
         The reconstructed store and the truth store (``truth.zarr`` of a simulation).
     maps_png : path-like, optional
-        Also write the two error maps as a PNG there (see :func:`plot_error_maps`).
+        Also write the two error maps as a PNG there (see :func:`plot_error_maps`); never one
+        of the stores, a path inside one or a folder holding one
+        (:func:`ltmstore.core.paths.check_output`).
 
     Returns
     -------
@@ -293,6 +296,8 @@ def compare_stores(store, truth, *, maps_png: str | os.PathLike | None = None) -
         ``var_abs_error_median``, ``var_abs_error_max`` (plus ``maps_png`` when written);
         ``interpolated_from``: the store's lattice shape, when it was not the truth's.
     """
+    if maps_png is not None:
+        check_output(maps_png, (store, truth))
     a, b = _open_pair(store, truth)
     interpolated = not all(_same_cells(a, b, dim) for dim in b.dims[2:])
     lattice = [a.sizes[dim] for dim in b.dims[2:]]

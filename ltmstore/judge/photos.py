@@ -24,13 +24,21 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from ltmstore.capture.lp import decode_image, read_lp
+from ltmstore.capture.lp import (
+    LpWarning,
+    decode_image,
+    hidden_lights,
+    image_orientation,
+    read_lp,
+    warn_orientations,
+)
 from ltmstore.core.dims import LUMA
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import encode, srgb_to_linear
@@ -49,20 +57,17 @@ def load_photos(lp: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     ``.lp`` capture (16-bit images are rounded to 8 bits, as scored)."""
     lp = Path(lp)
     names, directions = read_lp(lp)
-    images = [decode_image((lp.parent / name).read_bytes(), name) for name in names]
+    images, tagged = [], {}
+    for name in names:
+        data = (lp.parent / name).read_bytes()
+        images.append(decode_image(data, name))
+        if (orientation := image_orientation(data, name)) != 1:
+            tagged[name] = orientation
+    warn_orientations(tagged, len(names))
     shapes = {im.shape for im in images}
     if len(shapes) != 1:
         raise LtmError(f"the images of {str(lp)} differ in size: {sorted(shapes)}")
     return directions, np.stack([to_8bit(im) for im in images])
-
-
-def hidden_lights(n: int, every: int) -> np.ndarray:
-    """Which of ``n`` lights the ``every = k`` protocol hides: ``(n,)`` bool, true at lights
-    ``k-1, 2k-1, ...``; :class:`LtmError` unless ``k`` is a whole number from 2 to ``n``."""
-    if int(every) != every or every < 2 or every > n:
-        raise LtmError(f"--holdout-lights {every!r} must be a whole number from 2 to the "
-                       f"number of lights ({n})")
-    return np.arange(n) % int(every) == int(every) - 1
 
 
 def to_8bit(image: np.ndarray) -> np.ndarray:
@@ -105,7 +110,9 @@ def default_relit(lp: str | os.PathLike, train: Sequence[int] | None, query: np.
     """The project's pipeline on the training lights of ``lp`` (all when ``train`` is None),
     relit at ``query (q, 3)``: ``(q, H, W, 3)`` linear RGB and the reconstruct record."""
     store = Path(workdir) / "heldout.zarr"
-    ingest_rti(lp, store, lights=train, progress=False, overwrite=True)
+    with warnings.catch_warnings():  # load_photos has said what reading the capture found
+        warnings.simplefilter("ignore", LpWarning)
+        ingest_rti(lp, store, lights=train, progress=False, overwrite=True)
     info = reconstruct(store, progress=False)
     images = relight(store, directions=query).values
     return images, info

@@ -50,7 +50,8 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
         A reconstructed store.
     out : path-like
         The ``.ptm`` or ``.rti`` file, or the folder of the web format; an existing one is
-        replaced only with ``overwrite``.
+        replaced only with ``overwrite``, and never the store, a path inside it or a folder
+        holding it (:func:`ltmstore.core.paths.check_output`).
     fmt : {"ptm", "hsh", "relight"}
         PTM 1.2, HSH ``.rti`` (RTIViewer), or Relight's web format (OpenLIME).
     order : {2, 3}
@@ -70,11 +71,12 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
         exposure ``white`` (the linear value shown as 1.0).
     """
     _check(fmt, order, basis, color, quality)
-    check_output(out, overwrite)
+    check_output(out, overwrite, inputs=(store,))
     samples = light_samples(store)
     white = fit.exposure(samples)
     design = _design(fmt, basis, order, samples.directions)
-    with atomic_output(out, overwrite=overwrite, folder=fmt == "relight") as tmp:
+    with atomic_output(out, overwrite=overwrite, folder=fmt == "relight",
+                       inputs=(store,)) as tmp:
         if fmt == "ptm" and color == "lrgb":
             coef, colour = fit.fit_lrgb(samples, design, white)
             ptm.write_lrgb(tmp, 255 * coef, colour)

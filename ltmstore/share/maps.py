@@ -292,7 +292,8 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
          directions: np.ndarray | None = None, diffuse: float = 1.0, specular: float = 1.0,
          overwrite: bool = False) -> dict:
     """``ltm maps``: the surface maps of ``store`` and, with ``directions``, its relit images
-    with the material changed, in a new folder ``out_dir`` written atomically.
+    with the material changed, in a new folder ``out_dir`` written atomically (never the
+    store, a folder in it or one holding it: :func:`ltmstore.core.paths.check_output`).
 
     Returns
     -------
@@ -302,12 +303,12 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
     from ltmstore.core.store import open_store
 
     check_material(directions, diffuse, specular)
-    check_output(out_dir, overwrite)
+    check_output(out_dir, overwrite, inputs=(store,))
     ds = open_store(store)
     require_surface(ds, store)
     if directions is not None:
         require_material(ds)
-    with atomic_output(out_dir, overwrite=overwrite, folder=True) as tmp:
+    with atomic_output(out_dir, overwrite=overwrite, folder=True, inputs=(store,)) as tmp:
         support = lobe_support(ds)  # once for the maps and the material images
         files = list(write_maps(ds, tmp, support=support).values())
         if directions is not None:

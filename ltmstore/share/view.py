@@ -22,6 +22,13 @@ it for relit images, one request in flight at a time:
 
 Only loopback addresses are served (:data:`LOOPBACK`), and requests whose ``Host`` header names
 another machine are refused (DNS rebinding).
+
+Each connection has its own daemon thread; a client that sends half a request and stays silent
+frees its thread after :data:`REQUEST_TIMEOUT_S`, one that hangs up is forgotten without a word
+(no traceback), and closing the server never waits for a request in flight, so Ctrl-C stops it
+within the half second :meth:`~socketserver.BaseServer.serve_forever` polls at. Up to
+:data:`BACKLOG` connections wait to be accepted (the standard library's 5 reset a burst of
+requests).
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ import io
 import json
 import os
 import socket
+import sys
 import threading
 import time
 import warnings
@@ -58,6 +66,9 @@ STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
 DISK_EDGE = 0.98  # far-light stores: (lx, ly) kept inside this radius (a light above the horizon)
 CACHED_BYTES = 32 * 2**20  # variables up to this size are held in memory
 FAR_AREA_SAMPLES = 5  # directions per axis of a far-light area light's square grid
+REQUEST_TIMEOUT_S = 10.0  # a client silent this long mid-request (or between two) is dropped
+BACKLOG = 1024  # connections waiting to be accepted (the kernel caps it at net.core.somaxconn)
+CLIENT_GONE = (ConnectionError, TimeoutError)  # BrokenPipe, ConnectionReset, ... : it left
 
 
 def check_host(host: str) -> str:
@@ -245,6 +256,7 @@ class Handler(BaseHTTPRequestHandler):
     """The page's requests; ``server.viewer`` holds the open store."""
 
     server_version = "ltm-view"
+    timeout = REQUEST_TIMEOUT_S  # a half-sent request frees its thread
 
     def log_message(self, format, *args) -> None:  # noqa: A002 - quiet: the page is the log
         pass
@@ -307,6 +319,8 @@ class ViewServer(ThreadingHTTPServer):
     """The page's server, holding the :class:`Viewer`."""
 
     daemon_threads = True
+    block_on_close = False  # server_close() never waits for a request (or a silent client)
+    request_queue_size = BACKLOG
 
     def __init__(self, viewer: Viewer, host: str, port: int) -> None:
         self.viewer = viewer
@@ -318,6 +332,16 @@ class ViewServer(ThreadingHTTPServer):
     def url(self) -> str:
         host, port = self.server_address[:2]
         return f"http://{'[::1]' if ':' in host else host}:{port}/"
+
+    def handle_error(self, request, client_address) -> None:
+        """Quiet about a client that left mid-request (a closed tab, a dropped connection);
+        any other failure as one line on stderr, not a traceback."""
+        exc = sys.exc_info()[1]
+        if isinstance(exc, CLIENT_GONE):
+            return
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"ltm view: a request failed: {type(exc).__name__}: {text}", file=sys.stderr,
+              flush=True)
 
 
 def make_server(store: str | os.PathLike, *, host: str = "127.0.0.1",

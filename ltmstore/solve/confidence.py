@@ -25,9 +25,10 @@ from ltmstore.solve.validate import heldout_error, observed_range
 
 MIN_CELLS = 8  # below this many observed cells no smooth LTF model is determined
 # Coverage: the fraction of the lattice within COVER_RADIUS (a fraction of the lattice side) of
-# an observed cell. Measured over 12 seeds of the simulated scribble (tests/test_stability.py):
-# the paper's K/M 0.29-0.35 gives 0.75-0.91 on 16 x 16 and 0.87-0.98 on 32 x 32 lattices; a hand
-# that stays in one half of the plane 0.43-0.57; K/M 0.03-0.06 (a very short path) 0.10-0.29.
+# an observed cell. Measured over 12 seeds of the simulated scribble
+# (tests/solve/test_stability.py): the paper's K/M 0.29-0.35 gives 0.75-0.91 on 16 x 16 and
+# 0.87-0.98 on 32 x 32 lattices; a hand that stays in one half of the plane 0.43-0.57; K/M
+# 0.03-0.06 (a very short path) 0.10-0.29.
 # The largest empty disc (coverage_gap) separates these less well: 0.23-0.45 for the paper's
 # 16 x 16 scribbles against 0.52-0.71 for the half-empty plane, so it is off by default.
 COVER_RADIUS = 0.125

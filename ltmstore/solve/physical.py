@@ -364,7 +364,10 @@ def _robust_weights(theta, lights, y, observed) -> np.ndarray:
     """Cauchy weights of each observation from its residual over the pixel's robust scale."""
     res = np.where(observed, _model(theta, lights) - y, 0.0)
     mad = _row_median(np.abs(res), observed)
-    scale = ROBUST * 1.4826 * mad + 1e-9 * np.abs(y).max()
+    # the floor is the pixel's own (a batch's largest value made each pixel's fit depend on
+    # the pixels fitted beside it)
+    floor = np.maximum(1e-9 * np.abs(y).max(axis=1, keepdims=True), 1e-30)
+    scale = ROBUST * 1.4826 * mad + floor
     return observed / (1 + (res / scale) ** 2)
 
 

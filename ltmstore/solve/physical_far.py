@@ -28,8 +28,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# reassociation and contraction only: NaN and infinity keep their meaning in comparisons
-FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+# Reassociation only: NaN and infinity keep their meaning in comparisons, and the kernels give
+# the same values compiled afresh as loaded from Numba's cache. With "contract" (or "nsz" or
+# "arcp" beside "reassoc") a freshly compiled kernel's fit differed from the cached one's in
+# almost every pixel (up to 2e-3 of a parameter), so a store depended on whether the cache was
+# warm (tests/solve/test_physical_far.py). The kernel costs 1.5x the CPU of all four flags.
+FASTMATH = {"reassoc"}
 LOG_ALPHA = (float(np.log(0.02)), 0.0)  # physical.ALPHA_RANGE, as the bounds of log alpha
 SLOPE_MAX = 3.0  # physical.SLOPE_MAX
 DAMPING_MAX = 1e6  # a pixel whose damping grows past this has converged (its steps vanish)

@@ -48,6 +48,7 @@ from ltmstore.capture.undistort import Undistorter
 from ltmstore.capture.video import VideoReader, threaded_first
 from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
+from ltmstore.core.paths import check_output
 from ltmstore.core.store import begin_stage, new_store
 from ltmstore.core.transfer import transfer_lut
 from ltmstore.stages.frames import (
@@ -118,12 +119,14 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     ------
     LtmError
         For a bad acquisition folder, an undecodable video, a ``camera_calibration`` of
-        another frame size, an existing store without ``overwrite``, fewer than
+        another frame size, an existing store without ``overwrite``, a store path that is,
+        lies in or holds the acquisition folder or one of its files, fewer than
         :data:`MIN_VALID_FRAMES` valid frames, or camera B's exposure or white balance drifting
         more than can be corrected (nothing is written then).
     """
     started = time.perf_counter()
     acq = load_acquisition(acq_dir)
+    check_output(store, _inputs(acq_dir, acq), what="store")  # before hashing and decoding
     poses = load_poses(acq.poses)
     if acq.view_plane is not None and poses.p is None:
         raise LtmError(f"{str(acq.poses)}: acquisition.json declares a view_plane but the poses "
@@ -150,6 +153,12 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
     return {**record, "store": str(store)}
 
 
+def _inputs(acq_dir: str | os.PathLike, acq: Acquisition) -> tuple:
+    """What ingest reads: the acquisition's files and its whole folder (a store inside it
+    would replace what lies there)."""
+    return (acq.video, acq.poses, acq.camera_calibration, acq_dir)
+
+
 def _write_frames(acq: Acquisition, store: str | os.PathLike, rig: ViewRig | None,
                   light: partial, corrections: Corrections | None, threaded: bool, *,
                   overwrite: bool, progress: bool, chunk_frames: int, z_tolerance: float,
@@ -160,7 +169,7 @@ def _write_frames(acq: Acquisition, store: str | os.PathLike, rig: ViewRig | Non
     started, hashed, scanned = times
     with VideoReader(acq.video, allow_dropped=allow_dropped,
                      threaded=threaded) as video, new_store(
-            store, overwrite=overwrite, inputs=(acq.folder, acq.video, acq.poses)) as group:
+            store, overwrite=overwrite, inputs=_inputs(acq.folder, acq)) as group:
         begin_stage(group, STAGE)
         sink = FrameSink(group, transfer=acq.transfer, chunk_frames=chunk_frames, rig=rig)
         bar = tqdm(video.frames(), total=video.frame_count, disable=not progress, unit="frame",

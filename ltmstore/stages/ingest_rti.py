@@ -22,13 +22,21 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ltmstore.capture.acquisition import sha256_file
-from ltmstore.capture.lp import decode_image, read_lp
+from ltmstore.capture.lp import (
+    decode_image,
+    hidden_lights,
+    image_orientation,
+    read_lp,
+    warn_orientations,
+)
 from ltmstore.core.errors import LtmError, brief
 from ltmstore.core.lights import DISK, FAR, KIND_ATTR, coordinate_attrs
+from ltmstore.core.paths import check_output
 from ltmstore.core.store import begin_stage, new_store
 from ltmstore.stages.frames import DEFAULT_CHUNK_FRAMES, STAGE, FrameSink, Lights, finish_ingest
 
-__all__ = ["DISK", "far_lights", "ingest_rti"]  # DISK: re-exported from core.lights
+# DISK: re-exported from core.lights
+__all__ = ["DISK", "far_lights", "held_out_record", "ingest_rti"]
 
 
 def far_lights(directions: np.ndarray) -> Lights:
@@ -40,7 +48,8 @@ def far_lights(directions: np.ndarray) -> Lights:
 
 
 def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
-               lights: Sequence[int] | None = None, overwrite: bool = False,
+               lights: Sequence[int] | None = None, holdout_every: int | None = None,
+               overwrite: bool = False,
                progress: bool = True, chunk_frames: int = DEFAULT_CHUNK_FRAMES) -> dict:
     """Ingest a classic RTI capture (sRGB images under known light directions) into a store.
 
@@ -56,8 +65,16 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
     lights : sequence of int, optional
         Keep only these lights (indices among the ``.lp`` file's lights above the horizon),
         e.g. to fit without held-out lights; default all.
+    holdout_every : int, optional
+        Leave out every ``holdout_every``-th light (lights ``k-1, 2k-1, ...``,
+        :func:`ltmstore.capture.lp.hidden_lights`, the protocol of ``ltm evaluate
+        --holdout-lights``) and record them in the ingest stage record: ``holdout_every`` and
+        ``held_out``, per light its ``index``, ``image`` and ``direction``
+        (:func:`held_out_record`), so that ``ltm info`` lists them and ``ltm evaluate
+        --holdout-lights`` scores them without being told the number. Not with ``lights``.
     overwrite : bool, default False
-        Replace an existing store instead of refusing.
+        Replace an existing store instead of refusing (never the ``.lp`` file, one of its
+        images or a folder holding them: :func:`ltmstore.core.paths.check_output`).
     progress : bool, default True
         Show a progress bar.
     chunk_frames : int, default 32
@@ -66,12 +83,21 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
     Returns
     -------
     dict
-        The ingest record (``n_frames``, ``n_valid``, ``rejected``, ``seconds``, ...) and
-        ``store``.
+        The ingest record (``n_frames``, ``n_valid``, ``rejected``, ``seconds``, ...;
+        ``holdout_every`` and ``held_out`` with ``holdout_every``) and ``store``.
     """
     started = time.perf_counter()
     lp_path = Path(lp_path)
     names, directions = read_lp(lp_path)
+    inputs = (lp_path, *(lp_path.parent / name for name in names))
+    check_output(store, inputs, what="store")
+    held_out = None
+    if holdout_every is not None:
+        if lights is not None:
+            raise LtmError("give either lights or holdout_every, not both")
+        hidden = hidden_lights(len(names), holdout_every)
+        held_out = held_out_record(names, directions, hidden)
+        lights = np.flatnonzero(~hidden).tolist()
     if lights is not None:
         keep = np.asarray(lights, dtype=int)
         if keep.size == 0 or keep.min() < 0 or keep.max() >= len(names):
@@ -80,7 +106,7 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
         names, directions = [names[i] for i in keep], directions[keep]
     lights = far_lights(directions)
     digest = hashlib.sha256()
-    with new_store(store, overwrite=overwrite) as group:
+    with new_store(store, overwrite=overwrite, inputs=inputs) as group:
         begin_stage(group, STAGE)
         sink = FrameSink(group, transfer="srgb", chunk_frames=chunk_frames,
                          expected_frames=len(names))
@@ -88,33 +114,50 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
         with closing(_decoded(lp_path.parent, names, sink.convert)) as images:
             bar = tqdm(zip(names, lights.valid, images, strict=True), total=len(names),
                        disable=not progress, unit="image", desc="ingest")
-            for name, valid, (data, rgb, ycc) in bar:
+            tagged = {}
+            for name, valid, (data, rgb, ycc, orientation) in bar:
                 digest.update(data)
                 sink.add(rgb, bool(valid), source=f"image {name!r}", ycc=ycc)
+                if orientation != 1:
+                    tagged[name] = orientation
+        warn_orientations(tagged, len(names))
         # sha256 "images": of all image files concatenated in .lp order
         acquisition = {"source": "rti", KIND_ATTR: FAR, "lp": lp_path.name,
                        "lp_path": str(lp_path.resolve()), "plane": DISK.to_json(),
                        "coordinates": coordinate_attrs(FAR), "transfer": "srgb", "images": names,
                        "frame_size": list(sink.shape),
                        "sha256": {"lp": sha256_file(lp_path), "images": digest.hexdigest()}}
-        info = {"frame_size": list(sink.shape), "chunk_frames": chunk_frames}
+        info = {"frame_size": list(sink.shape), "chunk_frames": chunk_frames,
+                **({"holdout_every": int(holdout_every), "held_out": held_out}
+                   if held_out else {})}
         record = finish_ingest(group, sink, np.arange(sink.n, dtype=np.float64), lights,
                                acquisition=acquisition, info=info, started=started)
     return {**record, "store": str(store)}
 
 
+def held_out_record(names: Sequence[str], directions: np.ndarray,
+                    hidden: np.ndarray) -> list[dict]:
+    """What the ingest stage records of the lights ``hidden`` (bool, one per light of the
+    ``.lp``): per light its ``index`` (among the ``.lp`` file's lights above the horizon),
+    ``image`` and ``direction``."""
+    return [{"index": int(i), "image": names[i],
+             "direction": [float(v) for v in directions[i]]} for i in np.flatnonzero(hidden)]
+
+
 def _decoded(folder: Path, names: Sequence[str], convert: Callable[[np.ndarray], np.ndarray],
-             *, workers: int | None = None) -> Iterator[tuple[bytes, np.ndarray, np.ndarray]]:
-    """``(file bytes, RGB, convert(RGB))`` of each image in ``names``, in order.
+             *, workers: int | None = None
+             ) -> Iterator[tuple[bytes, np.ndarray, np.ndarray, int]]:
+    """``(file bytes, RGB, convert(RGB), EXIF orientation)`` of each image in ``names``, in
+    order.
 
     A few threads read, decode and convert ahead of the caller (OpenCV and NumPy release the
     GIL); at most two images per thread wait, so memory stays bounded on long captures. An
     image that cannot be decoded raises when its turn comes.
     """
-    def load(name: str) -> tuple[bytes, np.ndarray, np.ndarray]:
+    def load(name: str) -> tuple[bytes, np.ndarray, np.ndarray, int]:
         data = (folder / name).read_bytes()
         rgb = decode_image(data, name)
-        return data, rgb, convert(rgb)
+        return data, rgb, convert(rgb), image_orientation(data, name)
 
     workers = workers or max(1, min(4, os.cpu_count() or 1))
     todo = iter(names)

@@ -9,6 +9,7 @@ import numpy as np
 
 from ltmstore.core.dims import Plane
 from ltmstore.core.imagefile import write_image
+from ltmstore.core.paths import check_output
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import CAPTURE, check_exposure, encode_images
 from ltmstore.stages.relight import relight
@@ -31,7 +32,8 @@ def render_previews(store, out_dir, *, n_frames: int = 24, fps: float = 12,
     store : path-like or xarray.Dataset
         A reconstructed near-light store.
     out_dir : path-like
-        Folder for ``relit_{centre,left,right,top,bottom}.png`` and ``relight.gif``.
+        Folder for ``relit_{centre,left,right,top,bottom}.png`` and ``relight.gif`` (never
+        the store, a folder in it or one holding it: :func:`ltmstore.core.paths.check_output`).
     n_frames, fps : int, float
         Frames of the circling light and their rate.
     exposure : {"capture", "auto"}
@@ -47,6 +49,7 @@ def render_previews(store, out_dir, *, n_frames: int = 24, fps: float = 12,
         The paths written.
     """
     check_exposure(exposure, ev)
+    check_output(out_dir, (store,))  # a Dataset given: no path to check
     ds = open_store(store)
     acq = ds.attrs["acquisition"]
     plane, transfer = Plane.from_json(acq["plane"]), acq.get("transfer", "srgb")

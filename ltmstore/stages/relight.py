@@ -14,7 +14,9 @@ Every query reads the LTM's light-major copy when the store has one
 Far-light store (a classic RTI capture, :mod:`ltmstore.stages.reconstruct_far`): a direction is
 evaluated by each tile's chosen model straight from the frames (no lattice in between; fitted,
 as there, to the sRGB-encoded colours and decoded to linear light); a
-``(r, s)`` light is the direction ``(r, s, sqrt(1 - r^2 - s^2))``.
+``(r, s)`` light is the direction ``(r, s, sqrt(1 - r^2 - s^2))``. Its surface model is
+rendered band by band of rows (:data:`BAND_BYTES`), as its frames are read chunk by chunk:
+memory follows the band, not the image.
 
 Relit values are linear light at the capture's exposure, never negative (clipped at 0),
 not scaled for display (:func:`ltmstore.core.transfer.encode_images` does that, photometric by
@@ -80,6 +82,12 @@ LIGHT = "light"
 
 
 FAR_FROM_DATA_DEG = 25.0  # a light further than this from every observed one gets a warning
+# A far-light store's surface model is rendered in bands of rows whose model at the captured
+# lights (float32 RGB) takes at most this (surface.row_bands): the whole image at once took
+# 2.7 GB at 1 MP, 47 lights; bands of 2**26 bytes 0.87 GB, of 2**24 0.54 GB (the frames'
+# chunks in flight the most of the rest), of 2**22 no less (relight(...).values' peak RSS;
+# the command's: bench/relight_memory.py).
+BAND_BYTES = 2**24
 
 
 class LightClampWarning(UserWarning):
@@ -521,12 +529,44 @@ def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
                         blend: surface.Blend, color: bool) -> xr.DataArray:
     """What the surface model adds to its blend's linear image at ``dirs``
     (:meth:`ltmstore.stages.surface.Blend.correction`), sRGB-encoded,
-    ``(light, y, x[, color])``."""
-    theta = surface.read_surface(ds)
-    image = theta.shape[:2]
-    corr = blend.correction(theta.reshape(-1, 3, 6), train, dirs, color=color)
+    ``(light, y, x[, color])``: lazy, one task per band of rows
+    (:func:`~ltmstore.stages.surface.row_bands` of :data:`BAND_BYTES`), each reading its rows
+    of the surface variables only."""
+    height, width = ds.sizes["y"], ds.sizes["x"]
+    rows = tuple(b.stop - b.start for b in surface.row_bands((len(train), height, width),
+                                                               BAND_BYTES))
+    maps = [da.asarray(ds[name].data) for name in surface.SURFACE]
+    maps = [m.rechunk((rows, -1, *(-1,) * (m.ndim - 2))) for m in maps]
+
+    weights = blend.smoother.weights(train, dirs).astype(np.float32)
+
+    def band(*values: np.ndarray) -> np.ndarray:
+        theta = surface.surface_theta(*values)
+        corr = _correction(blend, theta.reshape(-1, 3, 6), train, dirs, weights, color)
+        return corr.reshape(len(dirs), *theta.shape[:2], *corr.shape[2:])
+
+    extra = {"c": len(COLOR_CHANNELS)} if color else {}
+    indices = [(m, "yx" + ("k" if m.ndim == 3 else "")) for m in maps]
+    image = da.blockwise(band, "lyx" + "".join(extra), *(x for pair in indices for x in pair),
+                         new_axes={"l": len(dirs), **extra}, concatenate=True,
+                         dtype=np.float32, meta=np.empty((0,) * (3 + bool(color)), np.float32))
     dims = (LIGHT, "y", "x", COLOR) if color else (LIGHT, "y", "x")
-    return xr.DataArray(corr.reshape(len(dirs), *image, *corr.shape[2:]), dims=dims)
+    return xr.DataArray(image, dims=dims)
+
+
+def _correction(blend: surface.Blend, theta: np.ndarray, train: np.ndarray, dirs: np.ndarray,
+                weights: np.ndarray, color: bool) -> np.ndarray:
+    """:meth:`~ltmstore.stages.surface.Blend.correction` of the pixels ``theta (p, 3, 6)``,
+    ``weights`` the smoother's at ``dirs`` (float32), its sum over the captured lights taken
+    light by light: the same in every band of rows (BLAS's order, as
+    :func:`~ltmstore.stages.surface.correction` takes it, changes with the number of pixels and
+    threads: in the last bit of 1.5 % of the values of a 1000 x 300 image)."""
+    at_train = surface.model_encoded(theta, train, color=color, lobe=blend.lobe)
+    mixed = np.zeros((len(dirs), *at_train.shape[1:]), np.float32)
+    for k, plane in enumerate(at_train):
+        mixed += weights[:, k].reshape(-1, *(1,) * plane.ndim) * plane
+    query = surface.model_encoded(theta, dirs, color=color, lobe=blend.lobe)
+    return blend.weight * (query - mixed)
 
 
 def _transfer(values: xr.DataArray, func) -> xr.DataArray:

@@ -26,10 +26,10 @@ lowers the error there:
   around it; the store keeps it as ``exposure (t)``, the stage record as ``exposure_fitted``.
 
 Held out every 4th light, a dome is tested along its rings, where ``C`` is good, so a mix can
-win there and lose between the rings: ``bench/heldout_variants.py`` and the README measure it.
+win there and lose between the rings: ``python -m bench run heldout_protocols`` measures it.
 
 On the real captures of ``../shared/data`` this beats the best classic fit on held-out
-photographs (``bench/heldout_photos.py``); a scene where it does not is caught by
+photographs (``python -m bench run heldout_table``); a scene where it does not is caught by
 :func:`cross_validated`, which scores it against every classic model (HSH + RBF residual
 included) on the same held-out lights: :func:`best_classic` and :func:`choose_surface` then keep
 the classic fit and the surface is not fitted at all (``bench/heldout_table.py``: issue 28).
@@ -84,8 +84,9 @@ CLASSIC_MARGIN = 0.05
 # SynthRTI capture within 0.13 dB of GGX's, while 0.03 let SynthRTI multi-obj1-material5 take
 # Beckmann's (0.964 of GGX's, -0.88 dB at its test lights); the Beckmann renders that gain
 # score 0.002-0.41 of GGX's. At 0.05 a uniform test capture whose brightness follows no light
-# (tests/test_relight_any_light.py) took Beckmann's at 0.943, whose 4-fold held-out surface then
-# lost to PTM while GGX's beat it: the two protocols disagree where neither lobe is the scene's.
+# (tests/stages/test_relight_any_light.py) took Beckmann's at 0.943, whose 4-fold held-out
+# surface then lost to PTM while GGX's beat it: the two protocols disagree where neither lobe
+# is the scene's.
 LOBE_MARGIN = 0.1
 CHOICE_PIXELS = 4096  # pixels of the image that score it
 MAP_CHUNK = 512  # rows and columns of a map's chunks
@@ -197,11 +198,11 @@ def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = N
     return rgb
 
 
-def row_bands(shape: tuple[int, int, int]) -> list[slice]:
+def row_bands(shape: tuple[int, int, int], band_bytes: int | None = None) -> list[slice]:
     """Bands of the rows of frames ``shape (t, y, x)`` whose linear RGB (float32) takes at
-    most :data:`BAND_BYTES` (one row at least)."""
+    most ``band_bytes`` (default :data:`BAND_BYTES`; one row at least)."""
     t, height, width = shape
-    rows = max(1, BAND_BYTES // (t * width * 3 * 4))
+    rows = max(1, (BAND_BYTES if band_bytes is None else band_bytes) // (t * width * 3 * 4))
     return [slice(start, min(start + rows, height)) for start in range(0, height, rows)]
 
 
@@ -438,13 +439,19 @@ def surface_lobe(ds) -> str:
 
 def read_surface(ds) -> np.ndarray:
     """``theta (y, x, 3, 6)`` from a store's surface variables (an xarray Dataset)."""
-    normal = ds[NORMAL].values.astype(np.float64)
-    h, w = normal.shape[:2]
-    theta = np.empty((h, w, 3, 6))
+    return surface_theta(*(ds[name].values for name in SURFACE))
+
+
+def surface_theta(normal: np.ndarray, albedo: np.ndarray, specular: np.ndarray,
+                  roughness: np.ndarray, ambient: np.ndarray) -> np.ndarray:
+    """``theta (..., 3, 6)`` from the surface variables' values (in the order of
+    :data:`SURFACE`, any part of the image): :func:`read_surface` of a band of rows."""
+    normal = normal.astype(np.float64)
+    theta = np.empty((*normal.shape[:-1], 3, 6))
     theta[..., 0] = (-normal[..., 0] / normal[..., 2])[..., None]
     theta[..., 1] = (-normal[..., 1] / normal[..., 2])[..., None]
-    theta[..., 2] = ds[ALBEDO].values
-    theta[..., 3] = ds[SPECULAR].values
-    theta[..., 4] = np.log(ds[ROUGHNESS].values)[..., None]
-    theta[..., 5] = ds[AMBIENT].values
+    theta[..., 2] = albedo
+    theta[..., 3] = specular
+    theta[..., 4] = np.log(roughness)[..., None]
+    theta[..., 5] = ambient
     return theta

@@ -1,8 +1,8 @@
 """Failure regimes at the samples level: binned LTFs with their per-cell truth.
 
-Shared by ``tests/test_stability.py`` and ``bench/stability_table.py``. A regime is a ground-truth
-LTM rendered on a small lattice, a handheld trajectory seen by a 30 fps video, and a recipe for
-what goes wrong between the light and the binned samples:
+Shared by ``tests/solve/test_stability.py`` and ``bench/stability_table.py``. A regime is a
+ground-truth LTM rendered on a small lattice, a handheld trajectory seen by a 30 fps video, and a
+recipe for what goes wrong between the light and the binned samples:
 
 =============  ===========================================================================
 benign         canvas scene, K/M about 0.35 (the paper: 0.29), exact positions, no noise

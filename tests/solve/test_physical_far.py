@@ -108,3 +108,47 @@ def test_a_lobe_is_fitted_by_its_own_distribution():
         assert wrong > 10 * own, (own, wrong)
     with pytest.raises(physical.LtmError, match="lobe 'phong' is not one of ggx, beckmann"):
         physical.far_lights(directions, 3, "phong")
+
+
+# Fits of far (both lobes) and near lights, run in a fresh process: the kernels compiled afresh
+# (an empty cache) and then loaded from the cache that run wrote.
+KERNEL_RUN = """
+import sys
+import numpy as np
+from ltmstore.core.dims import Lattice
+from ltmstore.solve import Geometry, physical
+
+rng = np.random.default_rng(0)
+e, a = rng.uniform(0.2, 1.5, 48), rng.uniform(0, 2 * np.pi, 48)
+directions = np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+theta = np.column_stack([rng.uniform(-0.4, 0.4, (200, 2)), rng.uniform(0.2, 0.7, 200),
+                         rng.uniform(0.05, 0.3, 200), np.log(rng.uniform(0.1, 0.5, 200)),
+                         np.full(200, 0.01)])
+out = []
+for lobe in physical.LOBES:
+    lights = physical.far_lights(directions, 200, lobe)
+    y = physical._model(theta, lights).astype(np.float32)
+    out.append(physical.fit_parameters(y, np.ones_like(y), lights)[0])
+lattice = Lattice(bounds=((-0.2, 0.2), (-0.2, 0.2)), shape=(16, 16), dims=("r", "s"))
+near = physical.near_lights(Geometry(lattice, 0.3, rng.uniform(-0.05, 0.05, (200, 2))))
+y = physical._model(theta, near).astype(np.float32)
+out.append(physical.fit_parameters(y, (rng.random(y.shape) > 0.4).astype(np.float32), near)[0])
+np.save(sys.argv[1], np.stack(out))
+"""
+
+
+def test_the_kernels_give_the_same_values_compiled_afresh_and_cached(tmp_path):
+    """The same input gives the same parameters, bit for bit, whether the kernels were compiled
+    in this process or loaded from Numba's cache (with fast-math contraction they differed)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    runs = [tmp_path / f"{name}.npy" for name in ("compiled", "cached")]
+    for path in runs:
+        subprocess.run([sys.executable, "-c", KERNEL_RUN, str(path)], env=env, check=True,
+                       timeout=300)
+    assert any((tmp_path / "cache").rglob("*.nbi")), "the first run wrote no cache"
+    compiled, cached = (np.load(path) for path in runs)
+    np.testing.assert_array_equal(cached, compiled)

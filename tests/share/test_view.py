@@ -1,0 +1,239 @@
+"""``ltm view``: the real command serving the session store, driven in headless Chromium."""
+
+from __future__ import annotations
+
+import io
+import signal
+import subprocess
+
+import numpy as np
+import psutil
+import pytest
+from browser import Browser
+from PIL import Image
+from pipeline_helpers import BIN
+
+from ltmstore.cli import main
+from ltmstore.core.store import open_store
+from ltmstore.core.transfer import encode_images
+from ltmstore.stages.ingest import ingest
+from ltmstore.stages.relight import relight
+
+PIXELS_JS = """(() => {
+  const img = document.getElementById("image");
+  const c = document.createElement("canvas");
+  c.width = img.naturalWidth; c.height = img.naturalHeight;
+  const g = c.getContext("2d");
+  g.drawImage(img, 0, 0);
+  return {w: c.width, h: c.height,
+          data: Array.from(g.getImageData(0, 0, c.width, c.height).data)};
+})()"""
+
+RECT_JS = "JSON.parse(JSON.stringify(document.getElementById('image').getBoundingClientRect()))"
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = np.mean((a.astype(float) - b.astype(float)) ** 2)
+    return float("inf") if mse == 0 else 10 * np.log10(255**2 / mse)
+
+
+def cli_relight(store, light: tuple[float, float]) -> np.ndarray:
+    """The 8-bit image ``ltm relight STORE --light R,S`` writes (its own steps)."""
+    ds = open_store(store)
+    images = relight(ds, [light]).sum("light").values[None]
+    return encode_images(images, ds.attrs["acquisition"].get("transfer", "srgb"))[0]
+
+
+def page_pixels(browser: Browser) -> np.ndarray:
+    """The <img>'s pixels, RGB, read back through a canvas."""
+    got = browser.evaluate(PIXELS_JS)
+    return np.array(got["data"], dtype=np.uint8).reshape(got["h"], got["w"], 4)[..., :3]
+
+
+def move_light(browser: Browser, u: float, v: float) -> dict:
+    """Move the pointer to ``(u, v)`` over the image; wait for that image; its light."""
+    rect = browser.evaluate(RECT_JS)
+    browser.move_mouse(rect["left"] + (u + 1) / 2 * rect["width"],
+                       rect["top"] + (1 - v) / 2 * rect["height"])
+    return browser.wait_for(
+        f"(() => {{ const l = window.ltmView.last; return !window.ltmView.inflight && l && "
+        f"Math.abs(l.light.u - {u}) < 0.02 && Math.abs(l.light.v - {v}) < 0.02 && l.light; }})()")
+
+
+def default_sigint() -> None:
+    """In the child, before exec: Ctrl-C's default disposition. A suite started in the
+    background (``nohup pytest ... &``) ignores SIGINT and a child would inherit that; the
+    product keeps it so (``nohup ltm ... &`` should ignore Ctrl-C), the test wants a Ctrl-C."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture(scope="module")
+def served(small_store):
+    """``ltm view small_store`` as a real process: yields (process, URL)."""
+    proc = subprocess.Popen([BIN / "ltm", "view", str(small_store)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
+    try:
+        line = proc.stdout.readline()
+        assert "http://127.0.0.1:" in line, (line, proc.poll() and proc.stderr.read())
+        yield proc, line.split(" at ")[1].split()[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_view_page_relights_as_ltm_relight_under_the_pointer(served, small_store):
+    proc, url = served
+    with Browser() as browser:
+        browser.goto(url)
+        browser.wait_for("window.ltmView.ready")
+        first = page_pixels(browser)  # the light at the plane's centre
+        light = move_light(browser, 0.5, -0.25)
+        assert light["r"] == pytest.approx(0.1, abs=0.005)  # plane r in [-0.2, 0.2]
+        assert light["s"] == pytest.approx(-0.05, abs=0.005)
+        shown = page_pixels(browser)
+        expected = cli_relight(small_store, (light["r"], light["s"]))
+        assert shown.shape == expected.shape == (32, 32, 3)
+        assert psnr(shown, expected) > 60  # measured: inf (the same 8-bit image)
+        assert psnr(first, expected) < 30  # the light moved: measured 21.6 dB
+        rect = browser.evaluate(RECT_JS)
+        shot = np.asarray(Image.open(io.BytesIO(browser.screenshot(
+            {k: rect[k] for k in ("x", "y", "width", "height")}))).convert("RGB"))
+        rows = (np.arange(shot.shape[0]) * 32 // shot.shape[0])
+        cols = (np.arange(shot.shape[1]) * 32 // shot.shape[1])
+        assert psnr(shot, expected[rows][:, cols]) > 30  # measured: inf (21 px per pixel)
+    listening = [c.laddr for c in psutil.Process(proc.pid).net_connections(kind="inet")
+                 if c.status == psutil.CONN_LISTEN]
+    assert listening and all(a.ip == "127.0.0.1" for a in listening), listening
+
+
+def test_view_refuses_other_hosts_and_missing_stores(small_store, small_acquisition, tmp_path,
+                                                     capsys):
+    assert main(["view", str(small_store), "--host", "0.0.0.0"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "'0.0.0.0' is not a loopback" in err
+    assert main(["view", str(tmp_path / "none.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and err.startswith("ltm: error:") and "none.zarr" in err
+    ingest(small_acquisition, tmp_path / "ingested.zarr", progress=False)
+    assert main(["view", str(tmp_path / "ingested.zarr")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "has no complete ltm" in err
+
+
+def test_expected_error_overlay_and_area_light_are_served(served):
+    """The overlay PNG and an area light through the page's own requests."""
+    _, url = served
+    with Browser(600, 400) as browser:
+        browser.goto(url)
+        browser.wait_for("window.ltmView.ready")
+        assert browser.evaluate("!document.getElementById('error-set').hidden")
+        browser.evaluate("document.getElementById('error').click()")
+        browser.wait_for("document.getElementById('overlay').complete && "
+                         "document.getElementById('overlay').naturalWidth === 32")
+        browser.evaluate("document.querySelector('input[value=area]').click()")
+        light = browser.wait_for("(() => { const l = window.ltmView.last; return "
+                                 "!window.ltmView.inflight && l.light.radius > 0 && l.light; })()")
+        assert light["radius"] == pytest.approx(0.02)  # 0.1 of the plane's half width, 0.2 m
+
+
+def test_zoom_and_pan_keep_the_light_under_the_pointer(served):
+    """The wheel zooms about the pointer, a drag pans without moving the light, and the light
+    is still the plane point under the pointer."""
+    _, url = served
+    with Browser(600, 400) as browser:
+        browser.goto(url)
+        browser.wait_for("window.ltmView.ready")
+        before = browser.evaluate(RECT_JS)
+        x, y = before["left"] + before["width"] / 2, before["top"] + before["height"] / 2
+        browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=x, y=y, deltaX=0,
+                     deltaY=-400)
+        zoomed = browser.wait_for(f"(() => {{ const r = {RECT_JS}; "
+                                  f"return r.width > {1.5 * before['width']} && r; }})()")
+        assert zoomed["left"] + zoomed["width"] / 2 == pytest.approx(x, abs=1)
+        sent = browser.evaluate("window.ltmView.requests")
+        for kind, dx in (("mousePressed", 0), ("mouseMoved", 40), ("mouseReleased", 40)):
+            browser.call("Input.dispatchMouseEvent", type=kind, x=x + dx, y=y, button="left",
+                         buttons=1 if kind != "mouseReleased" else 0, clickCount=1)
+        panned = browser.wait_for(f"(() => {{ const r = {RECT_JS}; "
+                                  f"return r.left > {zoomed['left'] + 39} && r; }})()")
+        assert panned["left"] == pytest.approx(zoomed["left"] + 40, abs=1)
+        assert browser.evaluate("window.ltmView.requests") == sent  # the drag moved no light
+        light = move_light(browser, -0.2, 0.1)
+        assert (light["r"], light["s"]) == pytest.approx((-0.04, 0.02), abs=0.002)
+
+
+def test_view_stops_cleanly_on_ctrl_c(served):
+    """After the other tests of `served`: it stops the module's server."""
+    proc, _ = served
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0
+    assert err.strip().splitlines() == ["ltm view: stopped"]
+
+
+def test_far_light_store_maps_the_pointer_to_a_direction(tmp_path):
+    """A classic RTI capture: the image spans the unit disk of (lx, ly); the rim stays above
+    the horizon; an area light is a cone of directions."""
+    from ingest_helpers import write_capture
+
+    from ltmstore.core.lights import elevation_azimuth
+    from ltmstore.share.view import Viewer
+    from ltmstore.stages.ingest_rti import ingest_rti
+    from ltmstore.stages.reconstruct import reconstruct
+
+    lights = elevation_azimuth(np.repeat([30, 50, 75], 6), np.tile(np.arange(0, 360, 60), 3))
+    ingest_rti(write_capture(tmp_path / "cap", dirs=lights), tmp_path / "s.zarr", progress=False)
+    reconstruct(tmp_path / "s.zarr", progress=False)
+    viewer = Viewer(tmp_path / "s.zarr")
+    light = viewer.light_at(0.3, -0.2)
+    assert (light.r, light.s) == pytest.approx((0.3, -0.2))
+    body, _ = viewer.render_png(light)
+    shown = np.asarray(Image.open(io.BytesIO(body)))
+    assert psnr(shown, cli_relight(tmp_path / "s.zarr", (0.3, -0.2))) == float("inf")
+    rim = viewer.light_at(1, 1)
+    assert np.hypot(rim.r, rim.s) == pytest.approx(0.98)
+    area, _ = viewer.render_linear(viewer.light_at(0.3, -0.2, radius=0.3))
+    assert area.shape == (6, 5, 3)
+    rng = np.random.default_rng(0)  # the mean over the cone, by random directions in it
+    radius, angle = 0.3 * np.sqrt(rng.random(2000)), 2 * np.pi * rng.random(2000)
+    cone = np.column_stack([0.3 + radius * np.cos(angle), -0.2 + radius * np.sin(angle)])
+    sampled = relight(tmp_path / "s.zarr", cone).mean("light").values
+    point = relight(tmp_path / "s.zarr", [(0.3, -0.2)]).values[0]
+    assert np.abs(area - sampled).max() < 0.015 * sampled.mean()  # measured 0.79 %
+    assert np.abs(area - point).max() > 0.03 * point.mean()  # not the point light: 5.6 %
+
+
+def test_view_has_help(capsys):
+    from ltmstore.cli import build_parser
+
+    with pytest.raises(SystemExit) as exc:
+        build_parser().parse_args(["view", "--help"])
+    out = capsys.readouterr().out
+    assert exc.value.code == 0 and "usage: ltm view" in out and "--port" in out
+
+
+def test_an_area_light_is_a_relit_disk_light_and_an_old_store_is_named(small_store, tmp_path):
+    """The server's area light is :func:`disk_light` relit; a store without the light-major
+    copy (written before it) is served with one warning that names the fix."""
+    import shutil
+
+    import zarr
+
+    from ltmstore.core.errors import LtmWarning
+    from ltmstore.share.view import Viewer
+    from ltmstore.stages.by_light import by_light_name
+    from ltmstore.stages.relight import disk_light
+
+    old = shutil.copytree(small_store, tmp_path / "old.zarr")
+    group = zarr.open_group(str(old), mode="r+")
+    for name in [n for n in group if n.endswith("_by_light")]:
+        del group[name]
+    with pytest.warns(LtmWarning, match="ltm compact"):
+        viewer = Viewer(old)
+    assert by_light_name("ltm") not in viewer.ds
+    light = viewer.light_at(0.2, -0.3, radius=0.3)
+    image, _ = viewer.render_linear(light)
+    ds = open_store(small_store)
+    expected = relight(ds, disk_light(ds["ltm"], (light.r, light.s), light.radius)).sum("light")
+    np.testing.assert_allclose(image, expected.values, rtol=1e-5, atol=1e-7)
