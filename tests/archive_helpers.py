@@ -51,8 +51,10 @@ def start_reconstruct(store: Path, *args: str, env: dict | None = None) -> subpr
                             start_new_session=True, env=env)
 
 
-def wait_for_tiles(proc: subprocess.Popen, store: Path, n: int = 1, timeout: float = 120) -> None:
-    """Poll until ``n`` tiles are marked done (the process must still run)."""
+def wait_for_tiles(proc: subprocess.Popen, store: Path, n: int = 1, timeout: float = 400) -> None:
+    """Poll until ``n`` tiles are marked done (the process must still run). The timeout only
+    catches a hung run: a clean clone's first run compiles the kernels in each Dask worker, and
+    beside the other xdist worker's tests one took over 120 s to its first tile."""
     deadline = time.monotonic() + timeout
     while tiles_done(store) < n:
         assert proc.poll() is None, "the run ended before the kill"
