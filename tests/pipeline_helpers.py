@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -128,3 +129,25 @@ def one_line_error(proc, pattern: str) -> None:
     assert errors == [lines[-1]], proc.stderr
     assert pattern in lines[-1], proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def default_sigint() -> None:
+    """In the child, before exec: Ctrl-C's default disposition. A suite started in the
+    background (``nohup pytest ... &``) ignores SIGINT and a child would inherit that; the
+    product keeps it so (``nohup ltm ... &`` should ignore Ctrl-C), the test wants a Ctrl-C."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@contextmanager
+def served_view(store: Path):
+    """``ltm view STORE`` as a real process: yields (process, URL); killed at the end."""
+    proc = subprocess.Popen([BIN / "ltm", "view", str(store)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
+    try:
+        line = proc.stdout.readline()
+        assert "http://127.0.0.1:" in line, (line, proc.poll() and proc.stderr.read())
+        yield proc, line.split(" at ")[1].split()[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import io
 import signal
-import subprocess
 
 import numpy as np
 import psutil
 import pytest
 from browser import Browser
 from PIL import Image
-from pipeline_helpers import BIN
+from pipeline_helpers import served_view
 
 from ltmstore.cli import main
 from ltmstore.core.store import open_store
@@ -60,26 +59,11 @@ def move_light(browser: Browser, u: float, v: float) -> dict:
         f"Math.abs(l.light.u - {u}) < 0.02 && Math.abs(l.light.v - {v}) < 0.02 && l.light; }})()")
 
 
-def default_sigint() -> None:
-    """In the child, before exec: Ctrl-C's default disposition. A suite started in the
-    background (``nohup pytest ... &``) ignores SIGINT and a child would inherit that; the
-    product keeps it so (``nohup ltm ... &`` should ignore Ctrl-C), the test wants a Ctrl-C."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 @pytest.fixture(scope="module")
 def served(small_store):
     """``ltm view small_store`` as a real process: yields (process, URL)."""
-    proc = subprocess.Popen([BIN / "ltm", "view", str(small_store)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
-    try:
-        line = proc.stdout.readline()
-        assert "http://127.0.0.1:" in line, (line, proc.poll() and proc.stderr.read())
-        yield proc, line.split(" at ")[1].split()[0]
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    with served_view(small_store) as served:
+        yield served
 
 
 def test_view_page_relights_as_ltm_relight_under_the_pointer(served, small_store):

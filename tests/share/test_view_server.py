@@ -12,28 +12,15 @@ from concurrent.futures import ThreadPoolExecutor
 from urllib.parse import urlsplit
 
 import pytest
-from pipeline_helpers import BIN
-
-
-def _default_sigint() -> None:
-    """In the child: Ctrl-C's default disposition (a suite run in the background ignores it)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+from pipeline_helpers import served_view
 
 
 @pytest.fixture(scope="module")
 def view(far_store):
     """``ltm view far_store`` as a real process: yields (process, (host, port))."""
-    proc = subprocess.Popen([BIN / "ltm", "view", str(far_store)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
-    try:
-        line = proc.stdout.readline()
-        assert "http://127.0.0.1:" in line, (line, proc.poll() and proc.stderr.read())
-        url = urlsplit(line.split(" at ")[1].split()[0])
+    with served_view(far_store) as (proc, url):
+        url = urlsplit(url)
         yield proc, (url.hostname, url.port)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
 
 
 def get(address: tuple[str, int], path: str, timeout: float = 60.0) -> tuple[int, bytes]:
