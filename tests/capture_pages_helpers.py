@@ -121,10 +121,12 @@ def run_capture(sim: Path, folder: Path, work: Path, *, shots: dict | None = Non
                 Browser(*VIEWPORT, args=fake_camera(y4m_a)) as a:
             b.goto(url_b)
             a.goto(url_a)
+            # the pages' start waits on the fake camera and the server: once, in a clean-clone
+            # suite run, camera B took over 20 s to record (cause not found); 60 s to start
             click(b, "start")
-            b.wait_for("window.ltmCapture.state === 'recording'")
+            b.wait_for("window.ltmCapture.state === 'recording'", timeout=60)
             click(a, "start")
-            a.wait_for("window.ltmCapture.state === 'running'")
+            a.wait_for("window.ltmCapture.state === 'running'", timeout=60)
             started = time.monotonic()
             time.sleep(OFFLINE_S[0])
             offline(b, True)  # camera B's Wi-Fi drops: its pieces must wait, then all arrive
