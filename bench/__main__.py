@@ -50,6 +50,10 @@ BENCHMARKS = {
     "factored": Benchmark("factored_bench.py", "ltm compact --form factored on a scale store"),
     "factored_compare": Benchmark("factored_compare.py", "dense and factored reconstruct, from "
                                   "scale runs"),
+    "export_fidelity": Benchmark("export_fidelity.py", "each export format read back at the "
+                                 "held-out lights, beside ltm relight"),
+    "ingest_memory": Benchmark("ingest_memory.py", "ltm ingest-rti's peak memory and time on "
+                               "classic captures of 1-24 MP, beside older code"),
     "relight_memory": Benchmark("relight_memory.py", "ltm relight's peak memory on classic "
                                 "captures of 1-4 MP, beside reconstruct's"),
     "relight_latency": Benchmark("relight_latency.py", "a point and an area light on a 0.25 MP "
@@ -63,6 +67,8 @@ BENCHMARKS = {
     "scale_6d": Benchmark("bench_6d.py", "the paper's 6D configuration out of core"),
     "track": Benchmark("track_bench.py", "two phones on a board: calibration, tracking, sync"),
     "phone_effects": Benchmark("phone_effects.py", "the two-phone chain with phone effects"),
+    "phone_effects_phone_size": Benchmark("phone_effects_phone_size.py", "the phone effects "
+                                          "at camera B 720 px: product against oracle"),
     "capture_latency": Benchmark("capture_latency.py", "ltm capture: tracking time, frames per "
                                  "second"),
     "capture_screenshots": Benchmark("capture_screenshots.py", "the ltm capture pages in "

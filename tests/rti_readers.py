@@ -110,10 +110,49 @@ def read_rti(path):
     return coef, lambda d: hsh_weights(d, terms)
 
 
+def bilinear_weights(info: dict, d: np.ndarray) -> np.ndarray:
+    """OpenLIME ``ShaderRTI``: ``setLight`` (x, y to the unit disk, z = sqrt(1 - x^2 - y^2)),
+    ``BLN.lightWeights`` (octahedral map turned 45 degrees, bilinear over the grid) and
+    ``loadBasis`` (plane 0 byte / 255, plane p (byte - 127) / range[p - 1]): per light and
+    channel, the weights of [1, coefficient_1, ..., coefficient_P], shape (lights, P + 1, 3)."""
+    res, np1 = info["resolution"], info["nplanes"] + 1
+    raw = np.asarray(info["basis"], float).reshape(np1, res * res, 3)
+    rng = np.asarray(info["materials"][0]["range"], float)
+    basis = np.concatenate([raw[:1] / 255, (raw[1:] - 127) / rng[:, None, None]])
+    out = []
+    for x, y, _ in d:
+        r = sqrt(x * x + y * y)
+        if r > 1:
+            x, y = x / r, y / r
+        z = sqrt(max(0.0, 1 - x * x - y * y))
+        s = abs(x) + abs(y) + abs(z)
+        u, v = ((x + y) / s + 1) / 2 * (res - 1), ((y - x) / s + 1) / 2 * (res - 1)
+        sx, sy = min(res - 2, max(0, int(np.floor(u)))), min(res - 2, max(0, int(np.floor(v))))
+        dx, dy = u - sx, v - sy
+        node = lambda i, j: basis[:, i + j * res, :]  # noqa: E731
+        out.append((1 - dx) * (1 - dy) * node(sx, sy) + dx * (1 - dy) * node(sx + 1, sy)
+                   + (1 - dx) * dy * node(sx, sy + 1) + dx * dy * node(sx + 1, sy + 1))
+    return np.stack(out)
+
+
 def read_web(folder):
-    """info.json + plane_<j>.jpg (channel k of plane j is plane 3j+k); (t - bias) * scale."""
+    """info.json + plane_<j>.jpg (channel k of plane j is plane 3j+k); (t - bias) * scale.
+    Colour space ``rgb`` (a basis per channel) or ``mrgb`` with type ``bilinear`` (PCA
+    coefficients shared by the channels, :func:`bilinear_weights`)."""
     info = json.loads((folder / "info.json").read_text())
-    assert info["colorspace"] == "rgb" and info["format"] == "jpg"
+    assert info["format"] == "jpg"
+    if info["colorspace"] == "mrgb":
+        assert info["type"] == "bilinear"
+        scale = np.array(info["materials"][0]["scale"])
+        bias = np.array(info["materials"][0]["bias"])
+        planes = np.concatenate([np.asarray(Image.open(folder / f"plane_{j}.jpg").convert("RGB"))
+                                 for j in range(info["nplanes"] // 3)], axis=2)
+        assert planes.shape[:2] == (info["height"], info["width"])
+        coef = (planes / 255 - bias) * scale  # (y, x, P), one per plane
+        coef = np.concatenate([np.ones((*coef.shape[:2], 1)), coef], axis=2)
+        return (np.repeat(coef[..., None], 3, axis=3),
+                lambda d: bilinear_weights(info, np.asarray(d, float)))
+    assert info["colorspace"] == "rgb"
     scale = np.array(info["materials"][0]["scale"]).reshape(-1, 3)
     bias = np.array(info["materials"][0]["bias"]).reshape(-1, 3)
     planes = np.stack([np.asarray(Image.open(folder / f"plane_{j}.jpg").convert("RGB"))
@@ -125,8 +164,10 @@ def read_web(folder):
 
 
 def relit(coef: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """8-bit images (light, y, x, 3) from coefficients (y, x, terms, 3)."""
-    return np.clip(np.round(255 * np.einsum("lb,yxbc->lyxc", weights, coef)), 0, 255)
+    """8-bit images (light, y, x, 3) from coefficients (y, x, terms, 3) and weights (light,
+    terms), or (light, terms, 3) for weights per channel."""
+    spec = "lbc,yxbc->lyxc" if weights.ndim == 3 else "lb,yxbc->lyxc"
+    return np.clip(np.round(255 * np.einsum(spec, weights, coef)), 0, 255)
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:

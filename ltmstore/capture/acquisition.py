@@ -28,6 +28,10 @@ TRANSFERS = ("srgb", "linear")
 REQUIRED_KEYS = ("format", "video", "poses", "plane", "transfer")
 POSE_COLUMNS = ("t", "r", "s", "z")
 VIEW_COLUMNS = ("p", "q")
+# Optional: phone A's LED axis (the direction its LED shines, phone A's optical axis), a unit
+# vector in plane coordinates (z up from the object: -1 straight down), issue 63
+AXIS_COLUMNS = ("axis_r", "axis_s", "axis_z")
+AXIS_NORM_TOLERANCE = 0.01  # |norm - 1| accepted (a tracker's rounding), then normalised
 MIN_POSES = 2
 MAX_JSON_BYTES = 1024 * 1024  # acquisition.json is a few hundred bytes
 PLANE_KEYS = {"r", "s", "height", "unit"}
@@ -58,8 +62,10 @@ class Acquisition:
         ``{"p": [min, max], "q": [min, max]}`` for 6D acquisitions.
     object_extent : dict or None
         ``{"x": [left, right], "y": [bottom, top]}``: the object-plane rectangle the (rectified)
-        video frame shows, plane units (key ``object``). It places every pixel under the near
-        light, which the physical reflectance model (``--method physical``) needs.
+        video frame shows, plane units (key ``object``), or, for a frame in any orientation on
+        the plane (turned, mirrored), ``{"top_left": [r, s], "top_right": [r, s],
+        "bottom_left": [r, s]}``, the plane positions of the frame's corners. It places every
+        pixel under the near light, which the physical reflectance model needs.
     camera_calibration : Path or None
         Camera B's intrinsics file (key ``camera_calibration``, JSON written by
         ``ltm calibrate``): ingest undoes its lens distortion.
@@ -99,6 +105,9 @@ class Poses:
         Light position on the plane and its height.
     p, q : ndarray or None
         Camera position on the view plane (6D acquisitions only).
+    axis : ndarray (n, 3) or None
+        The LED's axis, a unit vector in plane coordinates pointing down at the object
+        (columns ``axis_r, axis_s, axis_z``; None where the file has none).
     """
 
     t: np.ndarray
@@ -107,6 +116,7 @@ class Poses:
     z: np.ndarray
     p: np.ndarray | None = None
     q: np.ndarray | None = None
+    axis: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -325,20 +335,39 @@ def _view_plane(value: object, where: str) -> dict | None:
     return ranges
 
 
+OBJECT_CORNERS = ("top_left", "top_right", "bottom_left")  # ``object`` in any orientation
+
+
 def _object_extent(value: object, where: str) -> dict | None:
+    """``object``: ``{"x": [left, right], "y": [bottom, top]}`` (the frame's axes along ``r``
+    and ``s``) or the plane positions of three of the frame's corners (any orientation)."""
     if value is None:
         return None
     keys = ("x", "y")
-    if not (isinstance(value, dict) and set(value) == set(keys)
-            and all(_is_range(value[k]) for k in keys)
-            and all(0 < float(value[k][1]) - float(value[k][0]) < math.inf for k in keys)):
-        raise LtmError(f"{where}: object {value!r} must look like "
-                       "{'x': [left, right], 'y': [bottom, top]} with min < max, a finite width")
-    return {k: [float(value[k][0]), float(value[k][1])] for k in keys}
+    if isinstance(value, dict) and set(value) == set(keys) \
+            and all(_is_range(value[k]) for k in keys) \
+            and all(0 < float(value[k][1]) - float(value[k][0]) < math.inf for k in keys):
+        return {k: [float(value[k][0]), float(value[k][1])] for k in keys}
+    if isinstance(value, dict) and set(value) == set(OBJECT_CORNERS) \
+            and all(_is_range(value[k]) for k in OBJECT_CORNERS):
+        (x0, y0), (x1, y1), (x2, y2) = ((float(a) for a in value[k]) for k in OBJECT_CORNERS)
+        sides = (math.hypot(x1 - x0, y1 - y0), math.hypot(x2 - x0, y2 - y0))
+        cross = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        if all(0 < side < math.inf for side in sides) and abs(cross) > 1e-6 * sides[0] * sides[1]:
+            return {k: [float(a) for a in value[k]] for k in OBJECT_CORNERS}
+    raise LtmError(f"{where}: object {value!r} must look like {{'x': [left, right], 'y': "
+                   "[bottom, top]} with min < max, a finite width (the frame's columns along r, "
+                   "its rows down s), or in any orientation {'top_left': [r, s], 'top_right': "
+                   "[r, s], 'bottom_left': [r, s]} (the frame's corners on the plane, not in a "
+                   "line), with numbers")
 
 
 def load_poses(path: str | os.PathLike, *, min_samples: int = MIN_POSES) -> Poses:
-    """Read and validate ``poses.csv`` (header ``t,r,s,z[,p,q]``).
+    """Read and validate ``poses.csv`` (header ``t,r,s,z[,p,q][,axis_r,axis_s,axis_z]``).
+
+    The optional ``axis_r, axis_s, axis_z`` give phone A's LED axis at each row: a unit vector
+    (to :data:`AXIS_NORM_TOLERANCE`; normalised) in plane coordinates, pointing down at the
+    object (``axis_z < 0``).
 
     Parameters
     ----------
@@ -356,7 +385,8 @@ def load_poses(path: str | os.PathLike, *, min_samples: int = MIN_POSES) -> Pose
     ------
     LtmError
         If the header is wrong, a value is not a finite number (naming its line), the times are
-        not strictly increasing (naming the first offending line) or there are too few rows.
+        not strictly increasing (naming the first offending line), an axis is not a unit vector
+        pointing down at the object (naming its line) or there are too few rows.
     """
     path = Path(path)
     header, lines, rows = _read_csv(path)
@@ -370,19 +400,35 @@ def load_poses(path: str | os.PathLike, *, min_samples: int = MIN_POSES) -> Pose
         raise LtmError(f"{str(path)} line {lines[i]}: time {now!r} does not come after "
                        f"{before!r}; expected strictly increasing times")
     values = dict(zip(header, cols.T, strict=True))
+    if AXIS_COLUMNS[0] in values:
+        values["axis"] = _axis(path, lines, np.column_stack([values.pop(k) for k in AXIS_COLUMNS]))
     return Poses(**values)
+
+
+def _axis(path: Path, lines: list[int], axis: np.ndarray) -> np.ndarray:
+    """The LED axes ``(n, 3)`` normalised, or a one-line error naming the first bad row."""
+    norm = np.linalg.norm(axis, axis=1)
+    bad = (np.abs(norm - 1) > AXIS_NORM_TOLERANCE) | (axis[:, 2] >= 0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        shown = ", ".join(f"{v:g}" for v in axis[i])
+        raise LtmError(f"{str(path)} line {lines[i]}: LED axis ({shown}) must be a unit vector "
+                       f"(length {norm[i]:.3g}) pointing down at the object (axis_z < 0)")
+    return axis / norm[:, None]
 
 
 def _read_csv(path: Path) -> tuple[list[str], list[int], list[list[float]]]:
     """Header, file line numbers and finite values of every non-blank row."""
-    expected = [",".join(POSE_COLUMNS), ",".join(POSE_COLUMNS + VIEW_COLUMNS)]
+    expected = [",".join(POSE_COLUMNS + extra) for extra in
+                ((), VIEW_COLUMNS, AXIS_COLUMNS, VIEW_COLUMNS + AXIS_COLUMNS)]
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:  # a BOM is dropped
             reader = csv.reader(fh)
             header = [h.strip() for h in next(reader, [])]
             if ",".join(header) not in expected:
                 raise LtmError(f"{str(path)}: header {','.join(header)!r} must be "
-                               f"{expected[0]!r} or {expected[1]!r}")
+                               f"{expected[0]!r} or {expected[1]!r}, optionally followed by "
+                               f"{','.join(AXIS_COLUMNS)!r}")
             lines, rows = [], []
             for row in reader:
                 if any(v.strip() for v in row):

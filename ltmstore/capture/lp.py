@@ -106,7 +106,20 @@ def read_lp(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
     if not keep.any():
         raise LtmError(f"{str(path)} has no light above the horizon (every lz <= 0); expected "
                        "directions towards lights above the object")
-    return [n for n, k in zip(names, keep, strict=True) if k], directions[keep]
+    kept = [n for n, k in zip(names, keep, strict=True) if k]
+    _refuse_repeated(path, kept)
+    return kept, directions[keep]
+
+
+def _refuse_repeated(path: Path, names: list[str]) -> None:
+    """One photograph per light: an image that the file names for two lights or more is
+    refused, naming it and how often it is named."""
+    from collections import Counter
+
+    name, times = next(iter(Counter(names).most_common(1)), ("", 0))
+    if times > 1:
+        raise LtmError(f"{str(path)} names the image {name!r} for {times} lights; expected one "
+                       "photograph per light (each line its own image)")
 
 
 IMAGE_FOLDERS = ("jpeg-exports", "jpg", "images", "img")
@@ -214,6 +227,12 @@ def _header(data: bytes, name: str) -> tuple[int, int, int]:
 def image_orientation(data: bytes, name: str) -> int:
     """The EXIF orientation of one image file's bytes (1, upright, when it has none)."""
     return _header(data, name)[2]
+
+
+def image_size(data: bytes, name: str) -> tuple[int, int]:
+    """``(width, height)`` of one image file's bytes from its header (``(0, 0)`` where Pillow
+    does not know the format)."""
+    return _header(data, name)[:2]
 
 
 def warn_orientations(tagged: dict[str, int], total: int) -> None:

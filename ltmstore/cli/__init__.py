@@ -55,7 +55,7 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ltm`` parser with every command group registered."""
-    from ltmstore.cli import archive, capture, check, live, pipeline, share
+    from ltmstore.cli import archive, capture, check, lights, live, pipeline, share
 
     parser = Parser(
         prog="ltm", description="Relightable photographs from handheld light transport "
@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=Parser)
-    for group in (pipeline, check, share, capture, live, archive):
+    for group in (pipeline, check, share, capture, lights, live, archive):
         group.register(sub)
     return parser
 
@@ -96,16 +96,18 @@ def _run(args: argparse.Namespace) -> int:
     except BrokenPipeError:
         return quiet_broken_pipe()
     except LtmError as exc:
-        print(f"ltm: error: {one_line(str(exc))}", file=sys.stderr)
-        return 2
+        return error_line(str(exc))
     except ValueError as exc:  # a chunk that fails its checksum, found while reading
         from ltmstore.cli.check import damaged_read
 
         message = damaged_read(getattr(args, "store", None), exc)
         if message is None:
             raise
-        print(f"ltm: error: {one_line(message)}", file=sys.stderr)
-        return 2
+        return error_line(message)
+    except OSError as exc:  # the system refused: a full disk, /proc, a folder not writable
+        from ltmstore.cli.oserror import os_error
+
+        return error_line(os_error(exc, args))
     except KeyboardInterrupt:
         print("ltm: interrupted", file=sys.stderr)
         return 130
@@ -116,6 +118,21 @@ def _run(args: argparse.Namespace) -> int:
         print(f"ltm: error: {one_line(message)}", file=sys.stderr)
         return 2
     return 0
+
+
+def error_line(message: str) -> int:
+    """Print ``message`` as the one ``ltm: error:`` line and return the exit status 2, once
+    Zarr's reads and writes still in flight have ended (else the exit prints "Task was
+    destroyed but it is pending" and "Event loop is closed" under it)."""
+    if "zarr.core.sync" in sys.modules:  # Zarr was used: its event loop may hold tasks
+        from ltmstore.core.store import settle_writes
+
+        settle_writes(timeout=SETTLE_S)
+    print(f"ltm: error: {one_line(message)}", file=sys.stderr)
+    return 2
+
+
+SETTLE_S = 30.0  # longest wait for Zarr's tasks in flight after an error
 
 
 def prefect_not_started(exc: BaseException) -> str | None:

@@ -72,7 +72,15 @@ def _archive_params(a: argparse.Namespace):
 
 
 def _flow_params(a: argparse.Namespace) -> dict:
+    """The flow's parameters, every one checked (and the root) before Prefect starts its
+    temporary server (20-60 s)."""
+    from pathlib import Path
+
     p = _archive_params(a)
+    if not Path(a.root).is_dir():
+        raise LtmError(f"archive root {a.root!r} does not exist or is not a folder")
+    if a.max_concurrent < 1:
+        raise LtmError(f"--max-concurrent {a.max_concurrent!r} must be a whole number from 1")
     return {"lattice": None if p.lattice is None else list(p.lattice), "delta_rs": p.delta_rs,
             "method": p.method, "auto": p.auto, "tile": p.tile,
             "max_concurrent": a.max_concurrent, "scheduler": a.scheduler}
@@ -104,6 +112,19 @@ def cmd_archive_run(a: argparse.Namespace) -> None:
 
 def cmd_archive_serve(a: argparse.Namespace) -> None:
     params = _flow_params(a)
+    check_cron(a.cron)
     from flows.archive import serve_archive
 
     serve_archive(a.root, cron=a.cron, name=a.name, parameters=params)
+
+
+def check_cron(cron: str) -> None:
+    """Refuse a ``--cron`` that Prefect's schedule does not accept, in one line."""
+    from prefect.client.schemas.schedules import CronSchedule
+
+    try:
+        CronSchedule(cron=cron)
+    except ValueError as exc:  # pydantic's ValidationError: its first error's message
+        why = exc.errors()[0]["msg"] if hasattr(exc, "errors") else str(exc)
+        raise LtmError(f"--cron {cron!r} is not a cron schedule ({why}); expected five fields, "
+                       'e.g. "0 2 * * *"') from None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ltmstore.cli.args import add_output, new_output, number, numbers, print_json
+from ltmstore.core.errors import LtmError
 
 
 def register(sub) -> None:
@@ -86,10 +87,25 @@ def cmd_board(a: argparse.Namespace) -> None:
 
     squares = parse_squares(a.squares) if a.squares else None
     spec = board_spec(a.size, squares=squares, square_mm=a.square_mm)
+    check_board_pixels(spec.page, a.dpi)
     info = write_board(a.output, spec, dpi=a.dpi, overwrite=a.overwrite)
     print(f"wrote {info['image']} ({spec.squares[0]}x{spec.squares[1]} squares of "
           f"{spec.square_length * 1000:g} mm, {spec.dictionary}; print at 100 %) and "
           f"{info['spec']}")
+
+
+BOARD_MAX_PIXELS = 2_000_000_000  # an A0 page at 1,200 dpi is 1.9e9 pixels (1.8 GiB, 8-bit)
+
+
+def check_board_pixels(page: tuple[float, float], dpi: int) -> None:
+    """Refuse a ``--dpi`` that is not positive, or that makes the page (``(width, height)`` in
+    metres) more than :data:`BOARD_MAX_PIXELS` pixels, before anything is drawn."""
+    pixels = (page[0] * dpi / 0.0254) * (page[1] * dpi / 0.0254)
+    if dpi < 1 or pixels > BOARD_MAX_PIXELS:
+        most = int((BOARD_MAX_PIXELS / (page[0] * page[1])) ** 0.5 * 0.0254)
+        raise LtmError(f"--dpi {dpi} must be from 1 to {most} for this "
+                       f"{page[0] * 1000:g} x {page[1] * 1000:g} mm page (at most "
+                       f"{BOARD_MAX_PIXELS:,} pixels)")
 
 
 def cmd_calibrate(a: argparse.Namespace) -> None:

@@ -27,12 +27,16 @@ EV_LIMIT = 20.0
 
 # ltmstore.share.export.FORMATS, WEB_BASES, COLORS and HSH_ORDERS
 FORMATS = ("ptm", "hsh", "relight")
-WEB_BASES = ("ptm", "hsh")
+WEB_BASES = ("bilinear", "ptm", "hsh")
 COLORS = ("rgb", "lrgb")
 HSH_ORDERS = (2, 3)
 
 # ltmstore.share.relight_web.DEFAULT_QUALITY
 DEFAULT_QUALITY = 95
+
+# ltmstore.share.pca_web.DEFAULT_RESOLUTION and DEFAULT_PLANES
+DEFAULT_RESOLUTION = 16
+DEFAULT_PLANES = 27
 
 # the names above, each with the library module and name it copies (for the test)
 ORIGINALS = {
@@ -48,4 +52,6 @@ ORIGINALS = {
     "COLORS": ("ltmstore.share.export", "COLORS"),
     "HSH_ORDERS": ("ltmstore.share.export", "HSH_ORDERS"),
     "DEFAULT_QUALITY": ("ltmstore.share.relight_web", "DEFAULT_QUALITY"),
+    "DEFAULT_RESOLUTION": ("ltmstore.share.pca_web", "DEFAULT_RESOLUTION"),
+    "DEFAULT_PLANES": ("ltmstore.share.pca_web", "DEFAULT_PLANES"),
 }

@@ -286,6 +286,7 @@ def cmd_simulate(a: argparse.Namespace) -> None:
 
 
 def cmd_simulate_raw(a: argparse.Namespace) -> None:
+    from ltmstore.core.paths import check_simulation_folder
     from ltmstore.synthetic.phone_effects import parse_effects
     from ltmstore.synthetic.raw import simulate_raw
 
@@ -294,6 +295,7 @@ def cmd_simulate_raw(a: argparse.Namespace) -> None:
                        "it cannot be combined with --6d or --lossy")
     effects = parse_effects("all" if a.effects is None else a.effects)
     density = {} if a.path_density is None else {"path_density": a.path_density}
+    check_simulation_folder(a.out, a.overwrite)  # never a folder of someone else's files
     print_json(simulate_raw(a.out, scene=a.scene, seed=a.seed, size=a.size,
                             overwrite=a.overwrite, board=a.board, effects=effects, **density))
 
@@ -395,8 +397,9 @@ def placement_note(record: dict | None) -> str:
     estimate's uncertainty (empty otherwise)."""
     if not record or record.get("source") != "estimated":
         return ""
-    (left, right), (bottom, top) = record["extent"]["x"], record["extent"]["y"]
-    return (f"  object estimated at x {left:.4g}..{right:.4g}, y {bottom:.4g}..{top:.4g} "
+    from ltmstore.stages.placement import describe
+
+    return (f"  object estimated at {describe(record['extent'])} "
             f"(+-{record['estimate']['uncertainty_pixels']:.1f} px)")
 
 

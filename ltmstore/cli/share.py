@@ -5,18 +5,31 @@ from __future__ import annotations
 import argparse
 
 from ltmstore.cli.args import number, numbers
-from ltmstore.cli.names import COLORS, DEFAULT_QUALITY, FORMATS, HSH_ORDERS, WEB_BASES
+from ltmstore.cli.names import (
+    COLORS,
+    DEFAULT_PLANES,
+    DEFAULT_QUALITY,
+    DEFAULT_RESOLUTION,
+    FORMATS,
+    HSH_ORDERS,
+    WEB_BASES,
+)
 
 
 def register(sub) -> None:
     """Add the sharing commands to the ``ltm`` subparsers ``sub``."""
     p = sub.add_parser("export", help="write a .ptm, .rti or Relight web folder (RTIViewer, "
                        "OpenLIME)",
-                       description="Fit a PTM or HSH basis per pixel to the store's colours at "
-                       "the lattice cells' light directions and write it as PTM 1.2 (.ptm), "
-                       "HSH RTI (.rti, RTIViewer) or Relight's web format (a folder with "
-                       "info.json and plane_<j>.jpg, for OpenLIME). Values are display sRGB; "
-                       "the 99.5th percentile of the store's linear RGB is white.")
+                       description="Write the store as PTM 1.2 (.ptm) or HSH RTI (.rti) for "
+                       "RTIViewer, or Relight's web format (a folder with info.json and "
+                       "plane_<j>.jpg, for OpenLIME). PTM and HSH are fitted per pixel to the "
+                       "store's colours at the lattice cells' light directions; the web "
+                       "format's default basis, bilinear, carries the store's own relighting "
+                       "(relit on Relight's octahedral grid of lights, PCA planes). Values are "
+                       "display sRGB at the capture's exposure, as ltm relight writes them. "
+                       "Prints what the format loses: its PSNR at the capture's held-out "
+                       "lights (ingest-rti --holdout-lights) against the photographs and "
+                       "ltm relight, else against ltm relight at the capture's lights.")
     p.add_argument("store", help="reconstructed store (ltm reconstruct)")
     p.add_argument("output", help="OUT.ptm, OUT.rti, or a folder for --format relight")
     p.add_argument("--format", dest="fmt", required=True, choices=FORMATS,
@@ -24,8 +37,15 @@ def register(sub) -> None:
                    "format (a folder, for OpenLIME)")
     p.add_argument("--order", type=int, default=3, choices=HSH_ORDERS,
                    help="hsh: 2 (9 terms) or 3 (16 terms) (default: %(default)s)")
-    p.add_argument("--basis", default="ptm", choices=WEB_BASES,
-                   help="relight: the basis of the web format (default: %(default)s)")
+    p.add_argument("--basis", default=WEB_BASES[0], choices=WEB_BASES,
+                   help="relight: the basis of the web format: bilinear (the store's "
+                   "relighting, PCA-compressed), or ptm / hsh fitted to it (default: "
+                   "%(default)s)")
+    p.add_argument("--resolution", type=int, default=DEFAULT_RESOLUTION,
+                   help="relight bilinear: light grid nodes per side (default: %(default)s)")
+    p.add_argument("--planes", type=int, default=DEFAULT_PLANES,
+                   help="relight bilinear: PCA planes, a multiple of 3 (default: "
+                   "%(default)s)")
     p.add_argument("--color", default="rgb", choices=COLORS,
                    help="ptm: a polynomial per channel (rgb) or luminance times colour (lrgb) "
                    "(default: %(default)s)")
@@ -41,10 +61,13 @@ def cmd_export(a: argparse.Namespace) -> None:
     from ltmstore.share.export import export
 
     r = export(a.store, a.output, fmt=a.fmt, order=a.order, basis=a.basis, color=a.color,
-               quality=a.quality, overwrite=a.overwrite)
+               quality=a.quality, overwrite=a.overwrite, resolution=a.resolution,
+               planes=a.planes)
     print(f"wrote {r['path']} ({r['format']}, {r['basis']} basis, {r['terms']} terms, "
-          f"{r['width']}x{r['height']} px, fitted at {r['directions']} light directions; "
+          f"{r['width']}x{r['height']} px, from {r['directions']} light directions; "
           f"white = {r['white']:.4g} linear)")
+    if "fidelity" in r:
+        print(r["fidelity"]["text"])
 
 
 def register_maps(sub) -> None:
@@ -62,7 +85,9 @@ def register_maps(sub) -> None:
                        "specular lobe scaled (RTI viewers' specular enhancement), at the "
                        "albedo map's exposure. Exposure: these images are scaled for display "
                        "(each map to its own white, the material images to the albedo map's), "
-                       "not written at the capture's exposure as ltm relight's are.")
+                       "not written at the capture's exposure as ltm relight's are. With "
+                       "--height and --mesh, the normals integrated into a height map and "
+                       "meshes in mm.")
     p.add_argument("store", help="far-light store reconstructed with --method physical")
     p.add_argument("output", metavar="OUT_DIR", help="folder to create")
     p.add_argument("--direction", type=numbers("LX,LY,LZ", "a direction"), action="append",
@@ -73,6 +98,23 @@ def register_maps(sub) -> None:
     p.add_argument("--specular", type=number, default=None, metavar="S",
                    help="scale of the specular lobe in the material images: 0 diffuse only, "
                    "3 enhanced (default: 1)")
+    p.add_argument("--height", action="store_true",
+                   help="also integrate the normals into height.png (16-bit, lowest 0, "
+                   "highest 65535) and height.json (its range in pixels, and mm)")
+    p.add_argument("--mesh", action="store_true",
+                   help="also write the height as height.ply and height.obj meshes in mm "
+                   "(needs --pixel-size or --object-width; implies --height)")
+    p.add_argument("--integration", default="poisson", choices=("poisson", "fc"),
+                   help="poisson: least squares (DCT); fc: Frankot-Chellappa (Fourier, mirror "
+                   "padding) (default: %(default)s)")
+    scale = p.add_mutually_exclusive_group()
+    scale.add_argument("--pixel-size", type=number, default=None, metavar="MM",
+                       help="the size of a pixel on the object, mm")
+    scale.add_argument("--object-width", type=number, default=None, metavar="MM",
+                       help="the width of the store's image on the object, mm")
+    p.add_argument("--mesh-step", type=int, default=None, metavar="PX",
+                   help="mesh vertices every PX pixels (default: the smallest step keeping "
+                   "at most a million vertices)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing OUT_DIR")
     p.set_defaults(func=cmd_maps)
 
@@ -86,8 +128,14 @@ def cmd_maps(a: argparse.Namespace) -> None:
                        "LX,LY,LZ")
     r = maps(a.store, a.output, directions=a.direction,
              diffuse=1.0 if a.diffuse is None else a.diffuse,
-             specular=1.0 if a.specular is None else a.specular, overwrite=a.overwrite)
+             specular=1.0 if a.specular is None else a.specular, overwrite=a.overwrite,
+             height=a.height, mesh=a.mesh, integration=a.integration, pixel_mm=a.pixel_size,
+             object_width_mm=a.object_width, mesh_step=a.mesh_step)
     print(f"wrote {r['path']} ({', '.join(r['files'])}; {r['width']}x{r['height']} px)")
+    if r["relief"] is not None:
+        mm = r["relief"].get("range_mm")
+        print(f"ltm maps: height range {r['relief']['range_px']:.4g} px"
+              + ("" if mm is None else f" = {mm:.4g} mm") + f" ({r['relief']['integration']})")
 
 
 def register_view(sub) -> None:

@@ -173,10 +173,17 @@ def object_extent(attrs: dict) -> dict | None:
 def object_pixels(extent: dict, image: tuple[int, int], rows: slice, cols: slice) -> np.ndarray:
     """Object-plane ``(X, Y)`` of the pixel centres ``rows x cols`` of an ``image (H, W)`` that
     shows ``extent = {"x": [left, right], "y": [bottom, top]}`` (``acquisition.json``'s
-    ``object``, plane units): ``(n, 2)`` in C order of ``(y, x)``. Pixel ``(0, 0)`` is the top
-    left corner; ``Y`` grows upwards as ``s`` does."""
-    (left, right), (bottom, top) = extent["x"], extent["y"]
+    ``object``, plane units), or in any orientation ``{"top_left": [X, Y], "top_right": [X, Y],
+    "bottom_left": [X, Y]}`` (the plane positions of the frame's corners): ``(n, 2)`` in C order
+    of ``(y, x)``. Pixel ``(0, 0)`` is the top left corner; ``Y`` grows upwards as ``s`` does."""
     h, w = image
+    if "x" not in extent:  # any orientation: the corners span the frame
+        tl, tr, bl = (np.asarray(extent[k], float) for k in ("top_left", "top_right",
+                                                             "bottom_left"))
+        vv, uu = np.meshgrid((np.arange(h)[rows] + 0.5) / h, (np.arange(w)[cols] + 0.5) / w,
+                             indexing="ij")
+        return tl + uu.reshape(-1, 1) * (tr - tl) + vv.reshape(-1, 1) * (bl - tl)
+    (left, right), (bottom, top) = extent["x"], extent["y"]
     x = left + (np.arange(w)[cols] + 0.5) * (right - left) / w
     y = top - (np.arange(h)[rows] + 0.5) * (top - bottom) / h
     xx, yy = np.meshgrid(x, y)

@@ -74,3 +74,43 @@ def _same_file(a: Path, b: Path) -> bool:
         return os.path.samefile(a, b)
     except OSError:  # one of them does not exist (yet)
         return False
+
+
+SIMULATION_RECORDS = ("acquisition.json", "truth/raw.json")  # what says `ltm simulate` wrote it
+
+
+def check_simulation_folder(folder: PathLike, overwrite: bool) -> None:
+    """Refuse an output ``folder`` of ``ltm simulate`` that is a file, or is not empty and was
+    not written by the simulator, or is one and ``overwrite`` is not given. Nothing is removed
+    here.
+
+    The simulator's folders are known by its own records (:data:`SIMULATION_RECORDS`): an
+    ``acquisition.json`` with a ``simulation`` record, or the two-phone simulation's
+    ``truth/raw.json``; a capture's folder has neither, and ``--overwrite`` never empties it.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise LtmError(f"output {str(folder)!r} exists and is not a folder")
+    try:
+        if not folder.is_dir() or not any(folder.iterdir()):
+            return
+    except OSError as exc:
+        raise LtmError(f"output folder {str(folder)!r} cannot be read: {exc.strerror}") from exc
+    if not (_simulated(folder / SIMULATION_RECORDS[0]) or (folder / SIMULATION_RECORDS[1])
+            .is_file()):
+        raise LtmError(f"folder {str(folder)!r} is not empty and is not an earlier ltm simulate "
+                       "output (no acquisition.json with a 'simulation' record); --overwrite "
+                       "replaces only a simulation's own files: choose a new or empty folder")
+    if not overwrite:
+        raise LtmError(f"output folder {str(folder)!r} is not empty; pass --overwrite to "
+                       "replace an earlier simulation there")
+
+
+def _simulated(acquisition: Path) -> bool:
+    import json
+
+    try:
+        record = json.loads(acquisition.read_text())
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(record, dict) and isinstance(record.get("simulation"), dict)

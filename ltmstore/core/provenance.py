@@ -57,7 +57,9 @@ def _placement(record: dict) -> dict:
                             "uncertainty": found.get("uncertainty"),
                             "sigma_pixels": found.get("sigma_pixels"),
                             "uncertainty_pixels": found.get("uncertainty_pixels"),
-                            "support": found.get("support")}
+                            "support": found.get("support"),
+                            **({"orientation": found["orientation"]}
+                               if "orientation" in found else {})}
     for key in ("disagreement", "reason"):
         if key in record:
             out[key] = record[key]

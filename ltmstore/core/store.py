@@ -305,7 +305,32 @@ def open_group(path: str | os.PathLike | Store, *, mode: str = "r") -> zarr.Grou
     if STAGES_ATTR not in group.attrs:
         raise LtmError(f"store {str(path)!r} is a Zarr v3 group but not an ltmstore store (no "
                        f"{STAGES_ATTR!r} attribute); make one with ltm ingest or ltm simulate")
+    _check_attribute_types(path, group.attrs.asdict())
     return group
+
+
+# The group attributes every reader takes as JSON objects (a record per stage in STAGES_ATTR)
+OBJECT_ATTRS = (STAGES_ATTR, "acquisition", integrity.WRITTEN)
+
+
+def _check_attribute_types(path: Path, attrs: dict) -> None:
+    """Refuse a store whose group attributes are not the JSON objects ltmstore writes (an
+    edited ``stages``, a stage record or ``acquisition`` of another JSON type), naming it."""
+    wrong = [(name, attrs[name]) for name in OBJECT_ATTRS
+             if name in attrs and not isinstance(attrs[name], dict)]
+    if not wrong and isinstance(attrs.get(STAGES_ATTR), dict):
+        wrong = [(f"{STAGES_ATTR}.{stage}", record)
+                 for stage, record in attrs[STAGES_ATTR].items() if not isinstance(record, dict)]
+    if wrong:
+        name, value = wrong[0]
+        raise LtmError(f"store {str(path)!r} is damaged: its attribute {name!r} is a JSON "
+                       f"{_json_type(value)}; expected an object as ltmstore writes it "
+                       f"({str(path / 'zarr.json')!r} was edited)")
+
+
+def _json_type(value) -> str:
+    return {list: "array", str: "string", bool: "boolean", int: "number", float: "number",
+            type(None): "null"}.get(type(value), type(value).__name__)
 
 
 def write_coord(group: zarr.Group, name: str, values: np.ndarray, **attrs) -> None:

@@ -1,9 +1,13 @@
 """``ltm export``: a store as a file the RTI world opens (RTIViewer, Relight, OpenLIME).
 
-The chosen basis is fitted per pixel to the store's colours at the lattice cells' light
-directions (:mod:`ltmstore.share.directions`, :mod:`ltmstore.share.fit`), quantised to bytes
-with one scale and bias per term (:mod:`ltmstore.share.quantize`) and written atomically: the
-output appears complete or not at all.
+PTM, HSH and the web format's ``ptm``/``hsh`` bases are fitted per pixel to the store's colours
+at the lattice cells' light directions (:mod:`ltmstore.share.directions`,
+:mod:`ltmstore.share.fit`), and quantised to bytes with one
+scale and bias per term (:mod:`ltmstore.share.quantize`); the web format's ``bilinear`` basis
+carries the store's own relighting (:mod:`ltmstore.share.pca_web`). Every format keeps the
+capture's exposure (``white`` = 1.0, as ``ltm relight`` writes images). Outputs are written
+atomically: complete or not at all. The report's ``fidelity`` says what the format loses at the
+capture's held-out lights (:mod:`ltmstore.share.fidelity`).
 """
 
 from __future__ import annotations
@@ -13,15 +17,16 @@ import os
 import numpy as np
 
 from ltmstore.core.errors import LtmError
-from ltmstore.share import bases, fit, hsh_rti, ptm, relight_web
+from ltmstore.share import bases, fidelity, fit, hsh_rti, pca_web, ptm, relight_web
 from ltmstore.share.atomic import atomic_output, check_output
 from ltmstore.share.directions import light_samples
 
 FORMATS = ("ptm", "hsh", "relight")
-WEB_BASES = ("ptm", "hsh")
+WEB_BASES = ("bilinear", "ptm", "hsh")
 COLORS = ("rgb", "lrgb")
 HSH_ORDERS = (2, 3)
 WEB_HSH_ORDER = 2  # the web readers evaluate 9 HSH terms
+CAPTURE_WHITE = 1.0  # the exports keep the capture's exposure, as ltm relight writes it
 
 
 def _check(fmt: str, order: int, basis: str, color: str, quality: int) -> None:
@@ -40,8 +45,10 @@ def _check(fmt: str, order: int, basis: str, color: str, quality: int) -> None:
 
 
 def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order: int = 3,
-           basis: str = "ptm", color: str = "rgb", quality: int = relight_web.DEFAULT_QUALITY,
-           overwrite: bool = False) -> dict:
+           basis: str = "bilinear", color: str = "rgb",
+           quality: int = relight_web.DEFAULT_QUALITY, overwrite: bool = False,
+           resolution: int = pca_web.DEFAULT_RESOLUTION,
+           planes: int = pca_web.DEFAULT_PLANES, score: bool = True) -> dict:
     """Export a reconstructed store to an RTI format.
 
     Parameters
@@ -56,40 +63,86 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
         PTM 1.2, HSH ``.rti`` (RTIViewer), or Relight's web format (OpenLIME).
     order : {2, 3}
         HSH order for ``fmt="hsh"``: 9 or 16 terms.
-    basis : {"ptm", "hsh"}
-        Basis of the web format (its HSH has 9 terms).
+    basis : {"bilinear", "ptm", "hsh"}
+        Basis of the web format: ``bilinear`` carries the store's own relighting
+        (:mod:`ltmstore.share.pca_web`: PCA planes over an octahedral grid of lights, at the
+        capture's exposure), ``ptm`` and ``hsh`` (9 terms) are fitted to it.
     color : {"rgb", "lrgb"}
         PTM only: a polynomial per channel, or one luminance polynomial times a colour.
     quality : int
         JPEG quality of the web format's planes.
     overwrite : bool
+    resolution, planes : int
+        ``bilinear`` only: grid nodes per side and PCA planes.
+    score : bool
+        Also evaluate the written coefficients at the capture's held-out lights (or its own
+        lights) against ``ltm relight`` and the photographs (:mod:`ltmstore.share.fidelity`).
 
     Returns
     -------
     dict
-        What was written: path, format, basis terms, size, number of light directions and the
-        exposure ``white`` (the linear value shown as 1.0).
+        What was written: path, format, basis terms, size, number of light directions, the
+        exposure ``white`` (the linear value shown as 1.0: the capture's, 1.0, as ``ltm
+        relight`` writes it) and, with ``score``, ``fidelity``
+        (:func:`ltmstore.share.fidelity.summary`).
     """
     _check(fmt, order, basis, color, quality)
+    if fmt == "relight" and basis == "bilinear":
+        pca_web.check(resolution, planes)
     check_output(out, overwrite, inputs=(store,))
-    samples = light_samples(store)
-    white = fit.exposure(samples)
+    samples = light_samples(store)  # refuses a store export cannot read
+    check = fidelity.checkpoints(store) if score else None
+    if fmt == "relight" and basis == "bilinear":
+        return _export_bilinear(store, out, quality, overwrite, resolution, planes, check)
+    white = CAPTURE_WHITE
     design = _design(fmt, basis, order, samples.directions)
     with atomic_output(out, overwrite=overwrite, folder=fmt == "relight",
                        inputs=(store,)) as tmp:
         if fmt == "ptm" and color == "lrgb":
             coef, colour = fit.fit_lrgb(samples, design, white)
             ptm.write_lrgb(tmp, 255 * coef, colour)
-        elif fmt == "ptm":
-            ptm.write_rgb(tmp, 255 * fit.fit_rgb(samples, design, white))
-        elif fmt == "hsh":
-            hsh_rti.write(tmp, fit.fit_rgb(samples, design, white))
+            coef = coef[..., None] * colour[:, :, None, :]  # rgb * L: linear in the terms
         else:
-            relight_web.write(tmp, fit.fit_rgb(samples, design, white), basis, quality=quality)
-    return {"path": os.fspath(out), "format": fmt, "basis": basis if fmt == "relight" else fmt,
-            "color": color, "terms": int(design.shape[1]), "width": samples.shape[1],
-            "height": samples.shape[0], "directions": int(len(samples.directions)),
-            "white": white}
+            coef = fit.fit_rgb(samples, design, white)
+            if fmt == "ptm":
+                ptm.write_rgb(tmp, 255 * coef)
+            elif fmt == "hsh":
+                hsh_rti.write(tmp, coef)
+            else:
+                relight_web.write(tmp, coef, basis, quality=quality)
+    report = {"path": os.fspath(out), "format": fmt,
+              "basis": basis if fmt == "relight" else fmt, "color": color,
+              "terms": int(design.shape[1]), "width": samples.shape[1],
+              "height": samples.shape[0], "directions": int(len(samples.directions)),
+              "white": white}
+    if check is not None:
+        weights = _design(fmt, basis, order, check.directions)
+        images = fidelity.display_images(np.einsum("lb,yxbc->lyxc", weights, coef))
+        report["fidelity"] = fidelity.summary(_label(fmt, basis, order), images, check)
+    return report
+
+
+def _label(fmt: str, basis: str, order: int) -> str:
+    """The format's name in the fidelity line."""
+    if fmt == "hsh":
+        return f"hsh order {order}"
+    return f"relight {basis}" if fmt == "relight" else fmt
+
+
+def _export_bilinear(store, out, quality: int, overwrite: bool, resolution: int,
+                     planes: int, check: fidelity.Checkpoints | None) -> dict:
+    """The web format carrying the store's relighting (:mod:`ltmstore.share.pca_web`)."""
+    with atomic_output(out, overwrite=overwrite, folder=True, inputs=(store,)) as tmp:
+        info = pca_web.write(store, tmp, resolution=resolution, planes=planes, quality=quality,
+                             directions=None if check is None else check.directions)
+    report = {"path": os.fspath(out), "format": "relight", "basis": "bilinear",
+              "color": "rgb", "terms": planes, "width": info["width"],
+              "height": info["height"], "directions": info["directions"],
+              "white": CAPTURE_WHITE}
+    if check is not None:
+        report["fidelity"] = fidelity.summary(
+            "relight bilinear", fidelity.display_images(info["images"]), check)
+    return report
 
 
 def _design(fmt: str, basis: str, order: int, directions: np.ndarray) -> np.ndarray:

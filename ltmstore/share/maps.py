@@ -22,6 +22,9 @@ an object's outline, in its cast shadows), its strength and roughness are whatev
 bounds left: saturated colours, roughness 1. The maps fade such a lobe out (specular towards 0,
 roughness towards the median of the supported pixels), and the material images relight the
 faded lobes (a highlight no photograph saw is not shown, nor enhanced).
+
+With ``height``, :func:`maps` also integrates the normal map into a height map and meshes in
+millimetres (:mod:`ltmstore.share.height`).
 """
 
 from __future__ import annotations
@@ -290,19 +293,40 @@ def write_material(ds, out_dir: str | os.PathLike, directions: np.ndarray, *,
 
 def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
          directions: np.ndarray | None = None, diffuse: float = 1.0, specular: float = 1.0,
-         overwrite: bool = False) -> dict:
+         overwrite: bool = False, height: bool = False, mesh: bool = False,
+         integration: str = "poisson", pixel_mm: float | None = None,
+         object_width_mm: float | None = None, mesh_step: int | None = None) -> dict:
     """``ltm maps``: the surface maps of ``store`` and, with ``directions``, its relit images
     with the material changed, in a new folder ``out_dir`` written atomically (never the
     store, a folder in it or one holding it: :func:`ltmstore.core.paths.check_output`).
 
+    With ``height`` (or ``mesh``), also the normals integrated into a height map
+    (:func:`ltmstore.share.height.write_height`: ``integration`` ``"poisson"`` or ``"fc"``),
+    with ``mesh`` its PLY and OBJ meshes in mm, every ``mesh_step`` pixels: the scale is
+    ``pixel_mm`` or ``object_width_mm`` (the store's width in mm).
+
     Returns
     -------
     dict
-        ``path``, the ``files`` written (names), ``width`` and ``height``.
+        ``path``, the ``files`` written (names), ``width`` and ``height``, and with a height
+        map ``relief`` (what ``height.json`` holds).
     """
     from ltmstore.core.store import open_store
+    from ltmstore.share import height as ht
 
     check_material(directions, diffuse, specular)
+    height = height or mesh
+    if not height and (pixel_mm, object_width_mm, mesh_step) != (None, None, None):
+        raise LtmError("--pixel-size, --object-width and --mesh-step scale the height map: "
+                       "add --height or --mesh")
+    if integration not in ht.INTEGRATIONS:
+        raise LtmError(f"--integration {integration!r} must be one of "
+                       f"{', '.join(ht.INTEGRATIONS)}")
+    ht.pixel_size(1, pixel_mm, object_width_mm)
+    if mesh and pixel_mm is None and object_width_mm is None:
+        raise LtmError("--mesh writes millimetres: give the scale with --pixel-size MM or "
+                       "--object-width MM")
+    ht.mesh_step((1, 1), mesh_step)
     check_output(out_dir, overwrite, inputs=(store,))
     ds = open_store(store)
     require_surface(ds, store)
@@ -314,5 +338,11 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
         if directions is not None:
             files += write_material(ds, tmp, directions, diffuse=diffuse, specular=specular,
                                     support=support)
+        relief = None
+        if height:
+            written, relief = ht.write_height(
+                ds[sf.NORMAL].values, tmp, method=integration, mesh=mesh, step=mesh_step,
+                pixel_mm=ht.pixel_size(ds.sizes["x"], pixel_mm, object_width_mm))
+            files += list(written.values())
     return {"path": os.fspath(out_dir), "files": [f.name for f in files],
-            "width": ds.sizes["x"], "height": ds.sizes["y"]}
+            "width": ds.sizes["x"], "height": ds.sizes["y"], "relief": relief}

@@ -39,11 +39,15 @@ class Geometry:
         the axes of ``r, s``); ``None`` where the acquisition does not declare the object's
         extent and the capture cannot place it (:mod:`ltmstore.stages.placement`). A method
         that slices rows of a batch slices these with :meth:`take`.
+    led_exponent : float
+        ``k`` of the near light's ``cos^k`` emission about its axis (straight down), one value
+        per capture (:func:`ltmstore.stages.surface.choose_led_exponent`); 0: no beam.
     """
 
     lattice: Lattice
     height: float = 1.0
     pixels: np.ndarray | None = None
+    led_exponent: float = 0.0
 
     def take(self, rows: np.ndarray) -> Geometry:
         """The geometry of the batch rows ``rows`` (the same lattice; their pixel positions)."""

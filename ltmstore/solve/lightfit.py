@@ -137,7 +137,9 @@ def loo_operator(hat: np.ndarray) -> np.ndarray | None:
 
 
 def pick(mse: np.ndarray, models: tuple[Model, ...] | list[Model], n_lights: int) -> int:
-    """Index of the lowest ``mse``; among those within :data:`TIE` of it, the smallest model."""
+    """Index of the lowest ``mse``; among those within :data:`TIE` of it, the smallest model.
+    An MSE below zero (rounding, where a model fits exactly) counts as zero."""
+    mse = np.maximum(mse, 0.0)
     best = int(np.argmin(mse))
     if not np.isfinite(mse[best]):
         return 0

@@ -129,10 +129,13 @@ class Lights:
                        g=self.g[rows])
 
 
-def near_lights(geometry: Geometry, *, led_exponent: float = 0.0) -> Lights:
+def near_lights(geometry: Geometry, *, led_exponent: float | None = None) -> Lights:
     """The light of every lattice cell as seen from every pixel of ``geometry.pixels``
     (read-only arrays: the last :data:`CACHED_LIGHTS` are kept, since a tile's held-out fold
-    and its fit see the same pixels)."""
+    and its fit see the same pixels); the LED's ``cos^led_exponent`` beam (None: the
+    geometry's ``led_exponent``)."""
+    if led_exponent is None:
+        led_exponent = geometry.led_exponent
     if geometry.pixels is None:
         raise LtmError("method 'physical' needs each pixel's position on the object plane: "
                        "declare the object's extent in acquisition.json ('object')")
@@ -445,7 +448,7 @@ def render_colour(theta: np.ndarray, lights: Lights) -> np.ndarray:
     return np.stack([_model(theta[:, c], lights) for c in range(3)], axis=-1)
 
 
-def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
+def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None = None,
                 n_iter: int = N_ITER, robust: bool = True, share: bool = True,
                 start: np.ndarray | None = None,
                 at: np.ndarray | None = None) -> tuple[Surface, np.ndarray]:
@@ -457,8 +460,8 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
         Binned samples, NaN where unobserved.
     geometry : Geometry
         With ``pixels`` (each row's object-plane position).
-    led_exponent : float
-        ``m`` of the LED's ``cos^m`` emission profile.
+    led_exponent : float, optional
+        ``m`` of the LED's ``cos^m`` emission profile (default: ``geometry.led_exponent``).
     n_iter : int
         Levenberg-Marquardt iterations after the starts (:data:`START_ITER` each).
     robust : bool
@@ -571,7 +574,7 @@ def damped_residual(residual: np.ndarray, geometry: Geometry, *,
     return interpolated * damp
 
 
-def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
+def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None = None,
           share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
           n_iter: int = N_ITER, start: np.ndarray | None = None,
           at: np.ndarray | None = None) -> np.ndarray:
@@ -583,8 +586,8 @@ def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
         Binned samples, NaN where unobserved.
     geometry : Geometry
         Must carry ``pixels``.
-    led_exponent : float
-        ``m`` of the LED's ``cos^m`` emission.
+    led_exponent : float, optional
+        ``m`` of the LED's ``cos^m`` emission (default: ``geometry.led_exponent``).
     share : bool
         Pixels whose highlight fell in a hole take the tile's roughness (:func:`fit_surface`).
     residual : float
@@ -612,7 +615,7 @@ def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
                          start=start, at=at)[0]
 
 
-def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float = 0.0,
+def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None = None,
                   share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
                   n_iter: int = N_ITER, start: np.ndarray | None = None,
                   at: np.ndarray | None = None) -> tuple[np.ndarray, Surface]:
@@ -674,4 +677,5 @@ def _fit_key(samples: np.ndarray, geometry: Geometry, *params) -> tuple:
     digest = hashlib.sha1(np.ascontiguousarray(samples).tobytes())
     for array in (geometry.pixels, geometry.positions()):
         digest.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
-    return digest.hexdigest(), samples.shape, str(samples.dtype), geometry.height, params
+    return (digest.hexdigest(), samples.shape, str(samples.dtype), geometry.height,
+            geometry.led_exponent, params)

@@ -14,6 +14,16 @@ where it was at other times, so a gain that changes in time is told apart from a
 that changes with position. The block functions are eliminated exactly (a projection), which
 leaves a small linear system in the knots whose inverse gives each frame's standard error.
 
+Phone A's LED emits about ``cos^k`` of the angle off its axis, and a hand tilts that axis by a
+few degrees from frame to frame: the light reaching the painting then changes with time at a
+fixed position, which the model above reads as drift (a 2 degree wobble at the plane's edge:
+several per cent). Where the poses give the LED's axis, ``beam`` (the log of the beam's cosine
+relative to that of the LED held level, over the object, per frame) enters the model as one
+more term ``k * beam_i``, common to all blocks, with ``k`` (the beam's exponent) estimated
+jointly. The level beam's part is a function of the position alone, the painting's as before
+(a regressor holding it too took up the position model's misfit: ``k`` came out 0.8-1.0 on
+frames with no beam at all).
+
 Limits: a gain that follows the light position with no lag (an auto-exposure reacting
 instantly to the frame's brightness) is indistinguishable from the painting itself, and is not
 seen; nor is a change faster than the knot spacing.
@@ -55,6 +65,9 @@ class DriftEstimate:
         The frames the estimate used.
     residual : float
         RMS residual of the model (log units), per frame.
+    beam_exponent, beam_stderr : ndarray (3,) or None
+        The LED's ``cos^k`` exponent per channel and its standard error, where a ``beam`` term
+        was fitted.
     """
 
     log_gain: np.ndarray
@@ -62,6 +75,8 @@ class DriftEstimate:
     stderr_data: np.ndarray
     lit: np.ndarray
     residual: float
+    beam_exponent: np.ndarray | None = None
+    beam_stderr: np.ndarray | None = None
 
     def amplitude(self) -> float:
         """RMS over the lit frames and channels of the log gain."""
@@ -82,7 +97,8 @@ class DriftEstimate:
 
 
 def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarray,
-                   z: np.ndarray, lit: np.ndarray, plane: Plane) -> DriftEstimate | None:
+                   z: np.ndarray, lit: np.ndarray, plane: Plane, *,
+                   beam: np.ndarray | None = None) -> DriftEstimate | None:
     """Estimate camera B's log gain per frame and colour channel.
 
     Parameters
@@ -97,6 +113,9 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
         Frames lit by the LED at a known position.
     plane : Plane
         The illumination plane (the position basis spans it).
+    beam : ndarray (n,), optional
+        The LED's log beam relative to the LED held level, per frame
+        (:func:`beam_log_ratio`); frames where it is not finite are left out.
 
     Returns
     -------
@@ -105,35 +124,67 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
         beyond the parameters of the model (a short path: its misfit would be noise).
     """
     lit = np.asarray(lit, dtype=bool) & np.isfinite(r) & np.isfinite(s) & np.isfinite(z)
+    if beam is not None:
+        lit &= np.isfinite(beam)
     if lit.sum() < MIN_FRAMES:
         return None
     knots = _knots(t[lit])
-    m_all = _hats_1d(t, knots)
+    k = len(knots)
+    extra = np.zeros((len(t), 0)) if beam is None else np.nan_to_num(beam)[:, None]
+    m_all = np.column_stack([_hats_1d(t, knots), extra])  # knots, then the beam term
     m = m_all[lit]
     q = scipy.linalg.orth(_position_basis(r[lit], s[lit], z[lit], plane))  # the hats visited
-    dof = int(lit.sum()) - q.shape[1] - len(knots)
+    dof = int(lit.sum()) - q.shape[1] - m.shape[1]
     if dof < MIN_DOF:
         return None
     m_perp = m - q @ (q.T @ m)  # (I - P_W) M
-    d = np.diff(np.eye(len(knots)), axis=0)
-    data = m_perp.T @ m_perp + np.outer(m.mean(axis=0), m.mean(axis=0))  # gauge: mean zero
+    d = np.diff(np.eye(k, m.shape[1]), axis=0)[:k - 1]  # smoothness of the knots alone
+    gauge = np.concatenate([m[:, :k].mean(axis=0), np.zeros(m.shape[1] - k)])
+    data = m_perp.T @ m_perp + np.outer(gauge, gauge)  # gauge: mean zero
     inverse = np.linalg.pinv(data + SMOOTHNESS**2 * d.T @ d)
-    data_only = np.einsum("ij,jk,ik->i", m_all, np.linalg.pinv(data), m_all)
+    hats = m_all[:, :k]
+    data_only = np.einsum("ij,jk,ik->i", hats, np.linalg.pinv(data)[:k, :k], hats)
     n = len(t)
     log_gain, stderr, stderr_data = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
-    residuals = []
+    residuals, exponent, exponent_se = [], np.zeros(3), np.zeros(3)
     for c in range(3):
         y = _mean_log(blocks[lit, :, c])
         y_perp = y - q @ (q.T @ y)
         x = inverse @ (m_perp.T @ y_perp)
         resid = y_perp - m_perp @ x
         sigma2 = float(resid @ resid) / dof
-        log_gain[:, c] = m_all @ x - float(np.mean(m @ x))
-        stderr[:, c] = np.sqrt(sigma2 * np.einsum("ij,jk,ik->i", m_all, inverse, m_all))
+        log_gain[:, c] = hats @ x[:k] - float(np.mean(m[:, :k] @ x[:k]))
+        stderr[:, c] = np.sqrt(sigma2 * np.einsum("ij,jk,ik->i", hats, inverse[:k, :k], hats))
         stderr_data[:, c] = np.sqrt(sigma2 * np.maximum(data_only, 0))
         residuals.append(sigma2)
+        if beam is not None:
+            exponent[c], exponent_se[c] = x[k], np.sqrt(sigma2 * max(inverse[k, k], 0.0))
     return DriftEstimate(log_gain=log_gain, stderr=stderr, stderr_data=stderr_data, lit=lit,
-                         residual=float(np.sqrt(np.mean(residuals))))
+                         residual=float(np.sqrt(np.mean(residuals))),
+                         beam_exponent=None if beam is None else exponent,
+                         beam_stderr=None if beam is None else exponent_se)
+
+
+def beam_log_ratio(r: np.ndarray, s: np.ndarray, z: np.ndarray, axis: np.ndarray,
+                   extent: tuple[tuple[float, float], tuple[float, float]],
+                   grid: int = 8) -> np.ndarray:
+    """The LED's beam about ``axis`` ``(n, 3)`` relative to the LED held level (axis straight
+    down), per frame: the mean over a ``grid x grid`` of points over the object rectangle
+    ``extent`` (``((r0, r1), (s0, s1))`` at height 0) of ``log(cos a / cos a0)``, ``a`` and
+    ``a0`` the angles between the two axes and the direction from the LED at ``(r, s, z)`` to
+    the point (NaN where the LED points away from a point). Its exponent times this is the
+    beam's term in the mean log brightness over the frame's blocks that is not a function of
+    the light's position (the level beam's part is, and the painting's model holds it)."""
+    (r0, r1), (s0, s1) = extent
+    u = (np.arange(grid) + 0.5) / grid
+    pr, ps = np.meshgrid(r0 + (r1 - r0) * u, s0 + (s1 - s0) * u)
+    d = np.stack([pr.ravel()[None] - np.asarray(r)[:, None],
+                  ps.ravel()[None] - np.asarray(s)[:, None],
+                  np.broadcast_to(-np.asarray(z)[:, None], (len(r), pr.size))], -1)
+    ratio = np.einsum("npj,nj->np", d, axis) / -d[..., 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        logs = np.where(ratio > 0, np.log(np.where(ratio > 0, ratio, 1.0)), np.nan)
+    return logs.mean(axis=1)
 
 
 def _mean_log(values: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import cv2
@@ -57,6 +57,8 @@ MOMENTS = ((0, 0), (1, 0), (2, 0), (1, 1), (2, 2))  # Y^2, Cb Y, Cr Y, Cb^2, Cr^
 # Frames x pixels from which the compiled pass over each frame pays for loading Numba (0.6-0.8 s
 # of one core): NumPy's takes 1.8 ms per 0.16 MP frame against 0.6 ms, 159 against 66 ms at 4K.
 COMPILED_WORK = 10**8
+FLOAT32_SUM_FRAMES = 1024  # up to this many frames (known ahead) are summed in float32
+BAND_PIXELS = 2**22  # a frame not yet converted is converted and summed this many pixels at a time
 
 
 @dataclass(frozen=True)
@@ -67,7 +69,8 @@ class Lights:
     ``occluded`` (judged from the frames' brightness after the positions: see
     :mod:`ltmstore.stages.occlusion`) is None where occlusion was not judged; ``led_off``
     (the LED-off lead of a phone capture: :mod:`ltmstore.capture.lead`) is None where no lead
-    was looked for.
+    was looked for. ``axis`` ``(n, 3)``: the LED's axis per frame (unit, plane coordinates;
+    NaN where the poses do not cover the frame), None where the poses do not give it.
     """
 
     r: np.ndarray
@@ -79,6 +82,7 @@ class Lights:
     view: dict[str, np.ndarray] = field(default_factory=dict)
     occluded: np.ndarray | None = None
     led_off: np.ndarray | None = None
+    axis: np.ndarray | None = None
 
     @classmethod
     def classify(cls, r: np.ndarray, s: np.ndarray, z: np.ndarray, *, plane: Plane,
@@ -149,8 +153,13 @@ def lights_at(t: np.ndarray, poses: Poses, *, plane: Plane, z_tolerance: float,
     known = (t >= tp[0]) & (t <= tp[-1]) & ((bridged <= MAX_POSE_GAP_S) | measured)
     at = partial(np.interp, t, tp)
     view = {k: at(getattr(poses, k)) for k in VIEW_DIMS if getattr(poses, k) is not None}
-    return Lights.classify(at(poses.r), at(poses.s), at(poses.z), plane=plane, known=known,
-                           z_tolerance=z_tolerance, view=view, view_plane=view_plane)
+    lights = Lights.classify(at(poses.r), at(poses.s), at(poses.z), plane=plane, known=known,
+                             z_tolerance=z_tolerance, view=view, view_plane=view_plane)
+    if poses.axis is None:
+        return lights
+    axis = np.column_stack([at(poses.axis[:, k]) for k in range(3)])
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)  # interpolated: back to unit length
+    return replace(lights, axis=np.where(known[:, None], axis, np.nan))
 
 
 def chroma_decision(residual: np.ndarray, energy: np.ndarray) -> dict:
@@ -234,24 +243,43 @@ class FrameSink:
         if rgb8.shape != (*self._raw_shape, 3):
             raise LtmError(f"{source} is {rgb8.shape[1]}x{rgb8.shape[0]} pixels; expected "
                            f"{self._raw_shape[1]}x{self._raw_shape[0]} like the first frame")
-        if ycc is None:
-            ycc = self.convert(rgb8)
-        if self._rig is not None:
-            ycc = rectify(ycc, self._rig, *(view if view is not None else (np.nan, np.nan)))
+        if ycc is None and self._rig is None:  # converted a band of rows at a time
+            height, width = rgb8.shape[:2]
+            step = max(1, BAND_PIXELS // width)
+            bands = [slice(top, min(top + step, height)) for top in range(0, height, step)]
+        else:
+            if ycc is None:
+                ycc = self.convert(rgb8)
+            if self._rig is not None:
+                ycc = rectify(ycc, self._rig, *(view if view is not None else (np.nan, np.nan)))
+            bands = [slice(0, ycc.shape[0])]
         if self._frames is None:
-            self._start(ycc.shape[:2])
+            self._start(rgb8.shape[:2] if ycc is None else ycc.shape[:2])
         if self._rig is not None and valid:
             self.observed[0] += float(np.isfinite(ycc[..., 0]).mean())
             self.observed[1] += 1
-        total, count = self._accumulate(ycc, self._planes, self._sums, self._moments, valid)
+        total, count = 0.0, 0
+        for rows in bands:
+            part = self._add_rows(self.convert(rgb8[rows]) if ycc is None else ycc, rows, valid)
+            total, count = total + part[0], count + part[1]
         self.brightness.append(total / count if count else np.nan)
-        slots = (self._buffer[self._pending], *self._chroma_buffer[:, self._pending])
-        for plane, out in zip(self._planes, slots, strict=True):
-            _to_half(plane, out)
         self._pending += 1
         self.n += 1
         if self._pending == self._chunk_frames:
             self._flush()
+
+    def _add_rows(self, ycc: np.ndarray, rows: slice, valid: bool) -> tuple[float, int]:
+        """Sum and buffer the rows ``rows`` of the pending frame, ``ycc`` ``(n, W, 3)``."""
+        n = ycc.shape[0]
+        if self._planes is None or self._planes.shape[1] < n:
+            self._planes = np.empty((3, n, ycc.shape[1]), dtype=np.float32)
+        planes = self._planes[:, :n]
+        total, count = self._accumulate(ycc, planes, self._sums[:, rows],
+                                        self._moments[:, rows], valid)
+        slots = (self._buffer[self._pending, rows], *self._chroma_buffer[:, self._pending, rows])
+        for plane, out in zip(planes, slots, strict=True):
+            _to_half(plane, out)
+        return total, count
 
     def lit(self) -> bool:
         """Whether any valid frame so far holds light (a black video is no capture)."""
@@ -263,6 +291,7 @@ class FrameSink:
         Returns the chroma decision (:func:`chroma_decision`).
         """
         self._flush()
+        self._buffer = self._chroma_buffer = self._planes = None  # memory for what follows
         if len(t) != self.n:
             raise ValueError(f"{len(t)} times for {self.n} frames")
         height, width = self.shape
@@ -292,9 +321,12 @@ class FrameSink:
     def _start(self, shape: tuple[int, int]) -> None:
         frames = np.inf if self._expected_frames is None else self._expected_frames
         self._accumulate = _accumulator(frames * shape[0] * shape[1])
-        self._sums = np.zeros((3, *shape))
-        self._moments = np.zeros((5, *shape))
-        self._planes = np.empty((3, *shape), dtype=np.float32)
+        # float32 sums hold a classic capture's few hundred frames to 1e-5 and halve its
+        # memory (1.5 GiB of float64 at 24 MP); a video's thousands are summed in float64
+        sums = np.float32 if frames <= FLOAT32_SUM_FRAMES else np.float64
+        self._sums = np.zeros((3, *shape), dtype=sums)
+        self._moments = np.zeros((5, *shape), dtype=sums)
+        self._planes = None  # rows of one band, allocated by the first
         self._buffer = np.empty((self._chunk_frames, *shape), dtype=OBSERVATION_DTYPE)
         self._chroma_buffer = np.empty((2, self._chunk_frames, *shape), dtype=OBSERVATION_DTYPE)
         chunks = (self._chunk_frames, *self._spatial_chunks())

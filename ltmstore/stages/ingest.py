@@ -22,6 +22,9 @@ Camera B as a phone films it (:mod:`ltmstore.stages.phone`): with ``camera_calib
 ``acquisition.json`` every frame is undistorted; a leading LED-off segment gives the room
 light's image, subtracted from every frame (its frames are rejected as ``led_off``); a drift of
 the camera's gain or white balance is estimated from the frames and divided out, or refused.
+Where ``poses.csv`` gives phone A's LED axis (``axis_r, axis_s, axis_z``) the LED's ``cos^k``
+beam about it is part of that estimate, so that a hand's wobble is not taken for drift, and its
+exponent is recorded (``beam``).
 
 6D acquisitions (``view_plane`` in ``acquisition.json``, ``p, q`` columns in ``poses.csv``)
 whose ``view_plane`` declares camera B (``distance``, ``intrinsics``, ``grid``): every frame is
@@ -110,10 +113,10 @@ def ingest(acq_dir: str | os.PathLike, store: str | os.PathLike, *, overwrite: b
         ``n_frames``, ``n_valid``, ``rejected`` (per reason), ``fps``, ``frame_size``,
         ``z_tolerance``, ``timings`` (``setup``: reading and hashing the inputs; ``scan``: the
         first pass over the video; ``frames``: decoding and writing) and ``seconds`` (total);
-        for a fixed camera B ``undistort``, ``ambient`` and ``drift`` (what
-        :mod:`ltmstore.stages.phone` found and corrected; ``rejected`` then counts ``led_off``
-        frames when the video starts with an LED-off lead) (also stored as stage ``ingest``),
-        and ``store``.
+        for a fixed camera B ``undistort``, ``ambient``, ``drift`` and, where the poses give
+        the LED's axis, ``beam`` (what :mod:`ltmstore.stages.phone` found and corrected;
+        ``rejected`` then counts ``led_off`` frames when the video starts with an LED-off lead)
+        (also stored as stage ``ingest``), and ``store``.
 
     Raises
     ------

@@ -26,17 +26,32 @@ from ltmstore.capture.lp import (
     decode_image,
     hidden_lights,
     image_orientation,
+    image_size,
     read_lp,
     warn_orientations,
 )
+from ltmstore.core.dims import OBSERVATION_DTYPE
 from ltmstore.core.errors import LtmError, brief
 from ltmstore.core.lights import DISK, FAR, KIND_ATTR, coordinate_attrs
 from ltmstore.core.paths import check_output
 from ltmstore.core.store import begin_stage, new_store
-from ltmstore.stages.frames import DEFAULT_CHUNK_FRAMES, STAGE, FrameSink, Lights, finish_ingest
+from ltmstore.stages.frames import (
+    BAND_PIXELS,
+    DEFAULT_CHUNK_FRAMES,
+    STAGE,
+    FrameSink,
+    Lights,
+    finish_ingest,
+)
 
 # DISK: re-exported from core.lights
 __all__ = ["DISK", "far_lights", "held_out_record", "ingest_rti"]
+
+# Memory held by frames waiting to be written (one chunk along t) and, apart, by photographs
+# decoded ahead of the writer: fewer frames per chunk and fewer ahead on large photographs, and
+# photographs above BAND_PIXELS converted by the writer band by band, so that a 24 MP capture
+# ingests in a bounded amount of memory (bench/ingest_memory.py).
+BUFFER_BYTES = 256 * 2**20
 
 
 def far_lights(directions: np.ndarray) -> Lights:
@@ -108,18 +123,27 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
     digest = hashlib.sha256()
     with new_store(store, overwrite=overwrite, inputs=inputs) as group:
         begin_stage(group, STAGE)
-        sink = FrameSink(group, transfer="srgb", chunk_frames=chunk_frames,
-                         expected_frames=len(names))
+        pixels = _pixels(lp_path.parent / names[0])
+        sink = FrameSink(group, transfer="srgb", expected_frames=len(names),
+                         chunk_frames=_frames_per_chunk(pixels, chunk_frames))
         # closing: the decoding threads end with an error too
-        with closing(_decoded(lp_path.parent, names, sink.convert)) as images:
+        by_band = pixels > BAND_PIXELS
+        decoded = pixels * (3 if by_band else 3 + 3 * 4)  # RGB, and its float32 Y, Cb, Cr
+        with closing(_decoded(lp_path.parent, names, None if by_band else sink.convert,
+                              ahead=max(1, BUFFER_BYTES // max(1, decoded)))) as images:
             bar = tqdm(zip(names, lights.valid, images, strict=True), total=len(names),
                        disable=not progress, unit="image", desc="ingest")
-            tagged = {}
+            tagged, white = {}, 0
             for name, valid, (data, rgb, ycc, orientation) in bar:
                 digest.update(data)
                 sink.add(rgb, bool(valid), source=f"image {name!r}", ycc=ycc)
+                white += int(rgb.min() == np.iinfo(rgb.dtype).max)
                 if orientation != 1:
                     tagged[name] = orientation
+        if white == len(names):
+            raise LtmError(f"all {white} photographs of {str(lp_path)} are white in every "
+                           "pixel (saturated): nothing to relight; expected photographs "
+                           "exposed to keep the object's detail")
         warn_orientations(tagged, len(names))
         # sha256 "images": of all image files concatenated in .lp order
         acquisition = {"source": "rti", KIND_ATTR: FAR, "lp": lp_path.name,
@@ -144,25 +168,45 @@ def held_out_record(names: Sequence[str], directions: np.ndarray,
              "direction": [float(v) for v in directions[i]]} for i in np.flatnonzero(hidden)]
 
 
-def _decoded(folder: Path, names: Sequence[str], convert: Callable[[np.ndarray], np.ndarray],
-             *, workers: int | None = None
-             ) -> Iterator[tuple[bytes, np.ndarray, np.ndarray, int]]:
+def _pixels(first: Path) -> int:
+    """The pixels of a capture's first photograph from its header (0 where it cannot be read:
+    decoding it says why)."""
+    try:
+        width, height = image_size(first.read_bytes(), first.name)
+    except (OSError, LtmError):
+        return 0
+    return width * height
+
+
+def _frames_per_chunk(pixels: int, requested: int) -> int:
+    """``requested``, or fewer where that many frames of ``pixels`` would hold more than
+    :data:`BUFFER_BYTES` before they are written."""
+    per_frame = 3 * np.dtype(OBSERVATION_DTYPE).itemsize * pixels  # Y and Cb, Cr
+    return min(requested, max(1, BUFFER_BYTES // max(1, per_frame)))  # a bad one: refused
+
+
+def _decoded(folder: Path, names: Sequence[str],
+             convert: Callable[[np.ndarray], np.ndarray] | None, *,
+             workers: int | None = None, ahead: int | None = None
+             ) -> Iterator[tuple[bytes, np.ndarray, np.ndarray | None, int]]:
     """``(file bytes, RGB, convert(RGB), EXIF orientation)`` of each image in ``names``, in
-    order.
+    order (``convert`` None: ``None`` for the converted image).
 
     A few threads read, decode and convert ahead of the caller (OpenCV and NumPy release the
-    GIL); at most two images per thread wait, so memory stays bounded on long captures. An
-    image that cannot be decoded raises when its turn comes.
+    GIL); at most two images per thread wait, and at most ``ahead`` in all, so memory stays
+    bounded on long captures and large photographs. An image that cannot be decoded raises
+    when its turn comes.
     """
     def load(name: str) -> tuple[bytes, np.ndarray, np.ndarray, int]:
         data = (folder / name).read_bytes()
         rgb = decode_image(data, name)
-        return data, rgb, convert(rgb), image_orientation(data, name)
+        return data, rgb, convert and convert(rgb), image_orientation(data, name)
 
     workers = workers or max(1, min(4, os.cpu_count() or 1))
+    depth = 2 * workers if ahead is None else min(2 * workers, ahead)
     todo = iter(names)
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        waiting = deque(pool.submit(load, name) for _, name in zip(range(2 * workers), todo,
+    with ThreadPoolExecutor(max_workers=min(workers, depth)) as pool:
+        waiting = deque(pool.submit(load, name) for _, name in zip(range(depth), todo,
                                                                   strict=False))
         try:
             while waiting:

@@ -1,10 +1,12 @@
 """Where the frame lies on the object plane, for the near-light surface model.
 
 The physical model (:mod:`ltmstore.solve.physical`) needs each pixel's position under the light.
-``acquisition.json`` may declare it (``object``: the rectangle the rectified frame shows); when
-it does not, :func:`place_object` estimates it from the binned samples of a few thousand pixels
-spread over the frame (:mod:`ltmstore.solve.placement`). A declared extent is checked against the
-estimate (one warning line where they disagree beyond the estimate's uncertainty) and wins.
+``acquisition.json`` may declare it (``object``: the rectangle the rectified frame shows, ``{"x":
+[left, right], "y": [bottom, top]}``, or, in any orientation, the plane positions of three of
+its corners); when it does not, :func:`place_object` estimates the frame's map to the plane,
+whatever its turn or mirroring, from the binned samples of a few thousand pixels spread over the
+frame (:mod:`ltmstore.solve.placement`). A declared map is checked against the estimate (one
+warning line where they disagree beyond the estimate's uncertainty) and wins.
 
 Where the capture cannot place the object (the lights cover too little of it, or the estimate is
 too uncertain to help the model), ``auto`` falls back to the classic methods with one warning
@@ -22,7 +24,12 @@ import zarr
 
 from ltmstore.core.dims import SAMPLES
 from ltmstore.core.errors import LtmError, LtmWarning
-from ltmstore.solve.placement import Placement, estimate_placement
+from ltmstore.solve.placement import (
+    Placement,
+    edge_offsets,
+    estimate_placement,
+    frame_corners,
+)
 from ltmstore.stages.plan import TilePlan
 from ltmstore.stages.resample import Binning
 
@@ -33,6 +40,9 @@ READ_LINES = 64  # ... and from them this many pixel rows (columns), spread even
 # placed its relief as well as the whole path did: a margin, not a measured limit).
 MIN_SUPPORT = 0.25
 MAX_SIGMA = 0.05  # an edge less certain than this share of the extent's side is no placement
+# The frame's sides on the plane must be this far from parallel (the sine of their angle): a
+# frame squeezed flatter than that is no map the pixels' brightest lights can make.
+MIN_SINE = 0.5
 # Tilted surface regions move the pixels' peaks alike (a frame's bevel, all inwards), which no
 # bootstrap over pixels sees: on simulated captures (tests, bench/placement_bench.py) the
 # estimated edges lie up to 10 % of the side off beyond the bootstrap's spread where a relief's
@@ -74,7 +84,7 @@ def light_positions(binning: Binning, r: np.ndarray, s: np.ndarray) -> np.ndarra
 
 def estimate(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray,
              s: np.ndarray, height: float, *, seed: int = 0) -> Placement | None:
-    """The frame's extent estimated from the store's samples (see :mod:`ltmstore.solve.placement`).
+    """The frame's map estimated from the store's samples (see :mod:`ltmstore.solve.placement`).
     """
     values, rows, cols = read_pixels(group, plan)
     finite = np.isfinite(values)
@@ -86,10 +96,10 @@ def estimate(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray,
 
 
 def uncertainty(placement: Placement) -> np.ndarray:
-    """Each edge's uncertainty ``(left, right, bottom, top)``: the bootstrap's spread and
-    :data:`SYSTEMATIC` of the side, together."""
-    ext = placement.extent
-    sides = np.array([abs(np.diff(ext["x"])[0])] * 2 + [abs(np.diff(ext["y"])[0])] * 2)
+    """Each frame edge's uncertainty ``(left, right, bottom, top)``, across the edge: the
+    bootstrap's spread and :data:`SYSTEMATIC` of the frame's side across it, together."""
+    width, height = placement.sides
+    sides = np.array([width, width, height, height])
     boot = np.array(placement.sigma["x"] + placement.sigma["y"])
     return np.hypot(boot, SYSTEMATIC * sides)
 
@@ -106,23 +116,29 @@ def unsupported(placement: Placement | None, lights_range: str) -> str | None:
     """Why ``placement`` cannot be used (one clause, with what was measured), or None."""
     if placement is None:
         return "too few pixels vary with the light to place them"
-    (left, right), (bottom, top) = placement.extent["x"], placement.extent["y"]
-    if not (right > left and top > bottom):
-        return ("the pixels' brightest lights do not move along the frame's axes "
-                f"(estimated x {left:.4g}..{right:.4g}, y {bottom:.4g}..{top:.4g})")
+    tl, tr, bl = placement.corners
+    width, height = placement.sides
+    (ax, ay), (bx, by) = tr - tl, bl - tl
+    sine = abs(float(ax * by - ay * bx)) / max(width * height, 1e-300)
+    if sine < MIN_SINE:
+        return ("the pixels' brightest lights do not move along two directions of the frame "
+                f"(estimated {describe(placement.extent)})")
     if placement.support < MIN_SUPPORT:
         return (f"the lights ({lights_range}) cover {placement.support:.0%} of the estimated "
                 f"extent, at least {MIN_SUPPORT:.0%} needed")
-    side = min(right - left, top - bottom)
+    side = min(width, height)
     if placement.sigma_max > MAX_SIGMA * side:
         return (f"its edges are uncertain by {placement.sigma_max:.3g} plane units "
                 f"({placement.sigma_pixels:.1f} px), over {MAX_SIGMA:.0%} of its side")
     return None
 
 
-def _describe(extent: dict) -> str:
-    return (f"x {extent['x'][0]:.4g}..{extent['x'][1]:.4g}, "
-            f"y {extent['y'][0]:.4g}..{extent['y'][1]:.4g}")
+def describe(extent: dict) -> str:
+    """``x left..right, y bottom..top``, or the three corners of a map in any orientation."""
+    if "x" in extent:
+        return (f"x {extent['x'][0]:.4g}..{extent['x'][1]:.4g}, "
+                f"y {extent['y'][0]:.4g}..{extent['y'][1]:.4g}")
+    return ", ".join(f"{k.replace('_', '-')} ({v[0]:.4g}, {v[1]:.4g})" for k, v in extent.items())
 
 
 def place_object(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray,
@@ -146,12 +162,17 @@ def place_object(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndar
     Returns
     -------
     extent : dict or None
-        ``{"x": [left, right], "y": [bottom, top]}``, or None (the surface model is left out).
+        The frame's map to the plane: ``{"x": [left, right], "y": [bottom, top]}`` (its columns
+        along ``+r``, its rows down ``s``) or, in any orientation, ``{"top_left": [r, s],
+        "top_right": [r, s], "bottom_left": [r, s]}`` (its corners; both forms are what
+        :func:`ltmstore.core.dims.object_pixels` reads); None: the surface model is left out.
     record : dict
         ``source`` ("declared", "estimated" or "none"), ``extent``, ``estimate`` (the estimate's
-        record: the bootstrap's ``sigma`` per edge and ``sigma_pixels``, the full
-        ``uncertainty`` per edge in plane units and ``uncertainty_pixels``), and
-        ``disagreement`` or ``reason`` where they apply.
+        record: the bootstrap's ``sigma`` per frame edge and ``sigma_pixels``, the full
+        ``uncertainty`` per edge (left, right, bottom, top; across the edge) in plane units and
+        ``uncertainty_pixels``, the ``orientation``: ``model``, ``turn_degrees``,
+        ``turn_sigma_degrees``, ``mirrored``), and ``disagreement`` or ``reason`` where they
+        apply.
 
     Raises
     ------
@@ -178,24 +199,25 @@ def place_object(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndar
                f"{why}")
     if method == "physical":
         raise LtmError(f"{message}; declare it in acquisition.json ('object': {{'x': [left, "
-                       "right], 'y': [bottom, top]}}) and ingest again")
+                       "right], 'y': [bottom, top]}, or in any orientation {'top_left': [r, "
+                       "s], 'top_right': [r, s], 'bottom_left': [r, s]}) and ingest again")
     warnings.warn(f"{message}; the surface model is left out (declare 'object' in "
                   "acquisition.json to use it)", PlacementWarning, stacklevel=3)
     return None, {**record, "source": "none", "extent": None, "reason": why}
 
 
 def _check_declared(declared: dict, found: Placement) -> dict:
-    """How far the declared extent lies from the estimate; one warning line beyond
-    :data:`AGREE_SIGMAS` uncertainties."""
-    diff = np.array([np.subtract(declared[k], found.extent[k]) for k in ("x", "y")]).ravel()
-    sigmas = np.abs(diff) / uncertainty(found)
+    """How far each edge of the declared map lies from the estimate's, across it (either form,
+    any orientation); one warning line beyond :data:`AGREE_SIGMAS` uncertainties."""
+    diff = edge_offsets(frame_corners(declared), found.corners)
+    sigmas = diff / uncertainty(found)
     worst = int(np.argmax(sigmas))
     out = {"max_plane": float(np.abs(diff).max()), "max_sigmas": float(sigmas[worst]),
            "agrees": bool(sigmas[worst] <= AGREE_SIGMAS)}
     if not out["agrees"]:
         edge = ("left", "right", "bottom", "top")[worst]
-        warnings.warn(f"the object extent declared in acquisition.json ({_describe(declared)}) "
-                      f"disagrees with the one the capture shows ({_describe(found.extent)}): "
+        warnings.warn(f"the object extent declared in acquisition.json ({describe(declared)}) "
+                      f"disagrees with the one the capture shows ({describe(found.extent)}): "
                       f"its {edge} edge by {abs(diff[worst]):.3g} plane units, "
                       f"{sigmas[worst]:.1f} times the estimate's uncertainty; the declared one "
                       "is used", PlacementWarning, stacklevel=3)

@@ -17,7 +17,7 @@ import json
 import os
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -238,6 +238,17 @@ def choose_for_image(samples: zarr.Array, plan: TilePlan, geometry: Geometry,
     the best interpolating method and the physical model. All candidates in every tile cost
     about a second per tile (the RBF systems, the triangulation), and the tiles chose among
     the same few (toys-size canvas, icon and relief: ``physical``, ``rbf`` and ``cs+rbf``)."""
+    batch, geometry = image_sample(samples, plan, geometry, extent, seed=seed)
+    picked = choose_method(batch, geometry, seed=seed, pixels=len(batch))
+    return ImageChoice(method=picked,
+                       labels=finalists(picked) if picked.errors else (picked.label,))
+
+
+def image_sample(samples: zarr.Array, plan: TilePlan, geometry: Geometry,
+                 extent: dict | None, *, seed: int = 0) -> tuple[np.ndarray, Geometry]:
+    """:data:`IMAGE_PIXELS` pixels' samples ``(n, *lattice)`` drawn from up to
+    :data:`IMAGE_TILES` tiles spread over the image, and their geometry (placed by
+    ``extent``)."""
     rng = np.random.default_rng(seed)
     ty, tx = plan.grid
     picks = np.unique(np.linspace(0, ty * tx - 1, min(IMAGE_TILES, ty * tx)).round().astype(int))
@@ -254,9 +265,26 @@ def choose_for_image(samples: zarr.Array, plan: TilePlan, geometry: Geometry,
     batch = np.concatenate(rows)
     if extent is not None:
         geometry = geometry.with_pixels(np.concatenate(where))
-    picked = choose_method(batch, geometry, seed=seed, pixels=len(batch))
-    return ImageChoice(method=picked,
-                       labels=finalists(picked) if picked.errors else (picked.label,))
+    return batch, geometry
+
+
+def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
+             extent: dict | None) -> tuple[Geometry, dict | None]:
+    """``geometry`` with the exponent of the LED's ``cos^k`` beam of a near-light capture
+    placed by ``extent`` (None: no surface model, no beam), and its record: ingest's
+    estimate (poses with the LED's axis, tilted: an axis held level leaves the exponent
+    unseen there, recorded as 0 with a standard error of 0), else the held-out choice of
+    :func:`ltmstore.stages.surface.choose_led_exponent` on a sample of the image's pixels."""
+    if extent is None:
+        return geometry, None
+    beam = st.stages(group).get("ingest", {}).get("beam") or {}
+    if beam.get("source") == "estimated" and (beam.get("stderr") or 0) > 0:
+        k, record = float(beam["exponent"]), {"exponent": float(beam["exponent"]),
+                                              "source": "ingest"}
+    else:
+        batch, placed = image_sample(group[SAMPLES], plan, geometry, extent)
+        k, record = sf.choose_led_exponent(batch, placed)
+    return replace(geometry, led_exponent=k), record
 
 
 def plan_rows(plan: TilePlan, ty: int, tx: int) -> tuple[tuple[int, int], tuple[int, int]]:
@@ -317,9 +345,12 @@ def _write_samples(group: zarr.Group, name: str, frames: zarr.Array, binning: Bi
         client.compute(da.store(binned, samples, lock=False, compute=False)).result()
         return samples
     regions = resample_regions(plan, frames.chunks[-2:], frames.shape[-3])
+    # the arrays sent once, as futures: Distributed keys a keyword argument over 100 kB by its
+    # name ("count"), and a fine lattice's then failed the scheduler's assertion (300 x 300)
+    cells, count = client.scatter([binning.cell, binning.count.reshape(-1).astype(np.float32)],
+                                  broadcast=True, hash=False)
     futures = client.map(resample_region, regions, frames=frames, samples=samples,
-                         cells=binning.cell, count=binning.count.reshape(-1).astype(np.float32),
-                         channel=channel, pure=False)
+                         cells=cells, count=count, channel=channel, pure=False)
     _gather(futures, desc="resample regions", progress=progress)
     return samples
 
@@ -747,6 +778,9 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
     ``extent`` places the pixels on the object plane for the surface model (None: without it);
     ``placement`` records where it came from."""
     start = time.perf_counter()
+    geometry, beam = led_beam(group, plan, geometry, extent)
+    timings["led_beam_s"] = time.perf_counter() - start
+    start = time.perf_counter()
 
     def outputs(name: str) -> dict:  # where a tile of the LTM variable ``name`` goes
         written = ({FACTORS: tuple(group[n] for n in factors.staging_names(name))}
@@ -780,7 +814,8 @@ def _solve_stage(group: zarr.Group, client: Client, *, geometry: Geometry, plan:
             "resumed": resumed, "timings": timings, "form": form,
             **({"rank_rule": factored.RANK_RULE} if form == "factored" else {}),
             "seconds_per_pixel": sum(r["seconds"] for r in records) / int(np.prod(plan.image)),
-            **({"placement": placement} if placement is not None else {})}
+            **({"placement": placement} if placement is not None else {}),
+            **({"led_beam": beam} if beam is not None else {})}
     names = [LTM, *(CHROMA_LTM[c] for c in CHROMA_CHANNELS if color)]
     start = time.perf_counter()
     for name in names:

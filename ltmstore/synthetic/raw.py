@@ -22,7 +22,8 @@ them. Layout::
     OUT/board.json/.png    phone A's board: the A0 tracking board (--board) or an A4 page
     OUT/board_b.json/.png  a coarse A4 board for camera B's calibration
     OUT/truth/             intrinsics.json (phone A, with its distortion), intrinsics_b.json,
-                           poses_true.csv (true LED at phone A's frames, on video B's clock),
+                           poses_true.csv (true LED and its axis at phone A's frames, on
+                           video B's clock),
                            camera_b.csv (per frame of video B: LED on, AE gain, white-balance
                            gains, phone A's optical axis), raw.json (true clock offset, LED
                            offset, painting width, every effect and its strength);
@@ -391,8 +392,8 @@ def _execute(setup: RawSetup, folder: Path, truth: bool) -> dict:
     del ltm
     n = _write_camera_b(setup, folder, boards["b"], line, exposure)
     t0 = plan.video_start - fx.lead_s  # camera B's first frame, hand clock
-    writer.write_poses(folder / "truth" / "poses_true.csv", times_a - t0,
-                       *plan.trajectory.at(times_a)[:3])
+    _write_true_poses(folder / "truth" / "poses_true.csv", times_a - t0,
+                      plan.trajectory.at(times_a)[:3], phone_orientation_at(times_a, plan.seed))
     Intrinsics(setup.camera.size, setup.camera.matrix, np.array([*setup.dist_a, 0, 0, 0])) \
         .write(folder / "truth" / "intrinsics.json")
     info = _raw_info(setup, n, exposure, km)
@@ -409,6 +410,13 @@ def _execute(setup: RawSetup, folder: Path, truth: bool) -> dict:
     if not setup.board:
         paths["photograph"] = str(folder / PHOTOGRAPH)
     return {**info, "paths": paths}
+
+
+def _write_true_poses(path: Path, t: np.ndarray, led: tuple, r_wc: np.ndarray) -> None:
+    """``poses_true.csv``: the LED's position and its axis (phone A's optical axis, the LED
+    shines along it) at phone A's frames, header ``t,r,s,z,axis_r,axis_s,axis_z``."""
+    np.savetxt(path, np.column_stack([t, *led, r_wc[:, :, 2]]), delimiter=",",
+               header="t,r,s,z,axis_r,axis_s,axis_z", comments="", fmt="%.9g")
 
 
 def _write_boards(setup: RawSetup, folder: Path) -> dict:

@@ -26,6 +26,8 @@ interrupted run never looks like a complete acquisition folder.
 
 from __future__ import annotations
 
+import math
+import numbers
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -51,6 +53,7 @@ from ltmstore.core.dims import (
     Y,
 )
 from ltmstore.core.errors import LtmError
+from ltmstore.core.paths import check_simulation_folder
 from ltmstore.core.store import complete_stage, create_variable, new_store, write_coord
 from ltmstore.core.transfer import encode
 from ltmstore.synthetic import writer
@@ -71,6 +74,11 @@ from ltmstore.synthetic.trajectory import (
 )
 
 PLANE = Plane(r=(-0.2, 0.2), s=(-0.2, 0.2), height=0.3)  # a 40 cm square, 30 cm above
+# what a scene takes to render per pixel (measured: 240-283 B/px at 512 px over the three
+# scenes' builders), with room for the frames; and a float64 RGB truth LTM per lattice cell
+SCENE_BYTES_PER_PIXEL = 512
+TRUTH_BYTES_PER_CELL = 24
+MAX_VIDEO_FRAMES = 1_000_000  # a light path of up to 9 h of video at 30 frames/s
 DEFAULT_PATH_DENSITY = 27.0  # 1/m: K/M about 0.29 on a 32 x 32 lattice (the paper's ratio)
 EXPOSURE_PEAK = 0.9  # the brightest ground-truth value maps to this (linear)
 READ_NOISE = 0.002  # sensor noise: sigma^2 = READ_NOISE^2 + SHOT_NOISE * value (linear units)
@@ -155,6 +163,7 @@ def plan_simulation(*, scene: str | Scene = "canvas", path_density: float = DEFA
                     view_speed: float = VIEW_SPEED, speed: float = 0.25) -> SimulationPlan:
     """Plan a simulated acquisition (cheap: no rendering). See :func:`simulate_acquisition`."""
     density = check_path_density(path_density)
+    check_scale(seed=seed, size=size, path_density=density, speed=speed, plane=plane)
     the_scene = scene if isinstance(scene, Scene) else make_scene(scene, size=size, seed=seed)
     views = view_plane if view else None
     grid = _lattice(plane, delta_rs, lattice, views)
@@ -170,6 +179,60 @@ def plan_simulation(*, scene: str | Scene = "canvas", path_density: float = DEFA
                           tracker=tracker, video_start=video_start, frame_count=frame_count,
                           seed=seed, path_density=density, view_plane=views,
                           rig=view_rig(the_scene, view_plane) if view else None)
+
+
+def check_scale(*, seed: int, size: int, path_density: float, speed: float,
+                plane: Plane) -> None:
+    """Refuse, before anything is allocated, a seed that is not a whole number from 0, a scene
+    larger than this machine's memory (:data:`SCENE_BYTES_PER_PIXEL`) or a light path longer than
+    :data:`MAX_VIDEO_FRAMES` frames; each with one line naming the value and the limit."""
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise LtmError(f"--seed {seed!r} must be a whole number from 0 (a random seed)")
+    if isinstance(size, numbers.Integral) and size > 0:
+        largest = math.isqrt(memory_bytes() // SCENE_BYTES_PER_PIXEL)
+        if size > largest:
+            need = size_text(size ** 2 * SCENE_BYTES_PER_PIXEL)
+            raise LtmError(f"--size {size} asks for about {need} to render the scene; this "
+                           f"machine has {size_text(memory_bytes())} of memory: at most --size "
+                           f"{largest}")
+    frames = path_density * plane_area(plane) / speed * writer.FPS  # the path's length / speed
+    if not frames <= MAX_VIDEO_FRAMES:
+        longest = MAX_VIDEO_FRAMES * path_density / frames
+        raise LtmError(f"--path-density {path_density:g} asks for a light path of about "
+                       f"{frames:.3g} video frames; expected at most {MAX_VIDEO_FRAMES:,} "
+                       f"(--path-density up to about {longest:.4g})")
+
+
+def check_truth_memory(size: int, lattice: tuple[int, ...]) -> None:
+    """Refuse a true LTM (float64 RGB at every pixel and lattice cell) larger than this
+    machine's memory, naming its size and the largest ``--size`` that fits."""
+    per_pixel = TRUTH_BYTES_PER_CELL * math.prod(lattice)
+    if isinstance(size, numbers.Integral) and size > 0 and size ** 2 * per_pixel > memory_bytes():
+        raise LtmError(f"--size {size} with a {'x'.join(map(str, lattice))} truth lattice "
+                       f"asks for about {size_text(size ** 2 * per_pixel)} for truth.zarr's "
+                       f"LTM; this machine has {size_text(memory_bytes())} of memory: at most "
+                       f"--size {math.isqrt(memory_bytes() // per_pixel)}")
+
+
+def memory_bytes() -> int:
+    """This machine's physical memory."""
+    import psutil
+
+    return int(psutil.virtual_memory().total)
+
+
+def plane_area(plane: Plane) -> float:
+    (r0, r1), (s0, s1) = plane.r, plane.s
+    return abs((r1 - r0) * (s1 - s0))
+
+
+def size_text(n: float) -> str:
+    """``n`` bytes as ``12.3 GiB``."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.3g} {unit}"
+        n /= 1024
+    return f"{n:.3g} TiB"
 
 
 def _lattice(plane: Plane, delta_rs: float | None, shape: tuple[int, ...],
@@ -256,6 +319,13 @@ def simulate_acquisition(out: str | os.PathLike, *, scene: str | Scene = "canvas
         lattice = DEFAULT_LATTICE_6D if view else (32, 32)
     if speed is None:
         speed = SPEED_6D if view else 0.25
+    # every refusal before the scene is rendered: the values, then the folder
+    check_scale(seed=seed, size=size, path_density=check_path_density(path_density),
+                speed=speed, plane=plane)
+    if truth:
+        check_truth_memory(size, _lattice(plane, delta_rs, lattice,
+                                          view_plane if view else None).shape)
+    check_simulation_folder(out, overwrite)  # never a folder of someone else's files
     plan = plan_simulation(scene=scene, path_density=path_density, seed=seed, size=size,
                            delta_rs=delta_rs, lattice=lattice, plane=plane, view=view,
                            view_plane=view_plane, view_speed=view_speed, speed=speed)

@@ -3,10 +3,11 @@ viewer the format is written for, in headless Chromium (WebGL), relit at known l
 through ``LayerRTI.setLight`` and read back from its canvas.
 
 OpenLIME is GPL-3.0 and is not published on the npm registry (``npm view openlime``: 404 in
-November 2026), so it is neither shipped nor vendored here: the test runs OpenLIME's ES-module
-sources (``src/`` of github.com/cnr-isti-vclab/openlime, checked at commit 5b4e27b, version
-1.2.6) from ``$LTM_OPENLIME_SRC`` (default ``~/.cache/ltmstore-tests/openlime/src``) and is
-skipped, saying so, where they are absent. Its cost with the store built: about 1.5 s a basis.
+November and again on 2 December 2026), so it is neither shipped nor vendored here: the test
+runs OpenLIME's ES-module sources (``src/`` of github.com/cnr-isti-vclab/openlime, checked at
+commit 5b4e27b, version 1.2.6) from ``$LTM_OPENLIME_SRC`` (default
+``~/.cache/ltmstore-tests/openlime/src``) and is skipped, saying so, where they are absent.
+Its cost with the store built: about 1.5 s a basis.
 
 The canvas is compared with ``tests/share/test_export.py``'s reader of the format and with
 ``ltmstore.relight`` at that file's 10 lights inside the light plane (directions ``(x, y, z)``;
@@ -89,7 +90,7 @@ def canvas(browser: Browser) -> np.ndarray:
         data = browser.evaluate(FRAME)
         frame = np.asarray(Image.open(io.BytesIO(base64.b64decode(data.split(",", 1)[1])))
                            .convert("RGB"), float)
-        if last is not None and np.array_equal(frame, last):
+        if last is not None and np.array_equal(frame, last) and frame.any():  # drawn
             return frame
         last = frame
         time.sleep(0.02)
@@ -97,15 +98,17 @@ def canvas(browser: Browser) -> np.ndarray:
 
 
 # lowest PSNRs: OpenLIME's canvas against the test's reader (any of the 10 lights), and against
-# ltm relight (mean); measured 53.20 / 33.08 dB (ptm) and 53.14 / 34.52 dB (hsh), where the
-# reader against ltm relight gives 33.10 and 34.55 dB: OpenLIME adds nothing to the export's error
-LOWEST = {"ptm": (52.5, 32.7), "hsh": (52.5, 34.1)}
+# ltm relight (mean); measured 52.28 / 33.83 dB (ptm), 52.51 / 36.39 dB (hsh, fitted weighted,
+# since dropped; unweighted the reader gives 35.65 dB in test_export) and 52.53 / 35.89 dB
+# (bilinear: the store's relighting in PCA planes), where the reader against ltm relight gives
+# 33.85, 36.45 and 35.93 dB: OpenLIME adds nothing to the export's error on this store
+LOWEST = {"ptm": (51.5, 33.4), "hsh": (52.0, 35.2), "bilinear": (52.0, 35.4)}
 
 
 @pytest.mark.skipif(not (OPENLIME_SRC / "LayerRTI.js").is_file(),
                     reason=f"OpenLIME's sources absent at {OPENLIME_SRC} (not on npm; "
                            "set LTM_OPENLIME_SRC to a checkout's src/)")
-@pytest.mark.parametrize("basis", ["ptm", "hsh"])
+@pytest.mark.parametrize("basis", list(LOWEST))
 def test_openlime_renders_the_relight_export(basis, small_store, tmp_path, served):
     report = export(small_store, tmp_path / "web", fmt="relight", basis=basis)
     (tmp_path / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)

@@ -90,9 +90,9 @@ def test_frame_sink_streams_by_block(tmp_path):
 
 @pytest.mark.parametrize("expected_frames", [None, 6], ids=["compiled", "numpy"])
 def test_frame_sink_sums_as_numpy_does(tmp_path, expected_frames):
-    """The per-frame pass, compiled (a capture of unknown length) or NumPy's (a short one),
-    gives the stored planes, chroma sums and moments over the valid frames (NaN as
-    unobserved) and brightness that plain NumPy gives, NaN pixels included."""
+    """The per-frame pass, compiled (a capture of unknown length) or NumPy's (a short one,
+    summed in float32), gives the stored planes, chroma sums and moments over the valid frames
+    (NaN as unobserved) and brightness that plain NumPy gives, NaN pixels included."""
     rng = np.random.default_rng(3)
     ycc = rng.uniform([0.05, -0.1, -0.1], [0.9, 0.1, 0.1], (6, 5, 7, 3)).astype(np.float32)
     ycc[2, 1:3, 4] = np.nan  # registered frames leave unobserved pixels NaN
@@ -108,9 +108,10 @@ def test_frame_sink_sums_as_numpy_does(tmp_path, expected_frames):
                                   np.moveaxis(ycc[..., 1:], -1, 0).astype(np.float16))
     np.testing.assert_allclose(sink.brightness, np.nanmean(ycc[..., 0], axis=(1, 2)), rtol=1e-6)
     y, cb, cr = np.moveaxis(np.nan_to_num(ycc[valid]).astype(np.float64), -1, 0)
+    # a capture of known, short length sums in float32: 3.2e-6 at most here (float64: 1e-6)
     np.testing.assert_allclose(group["chroma"][...],
                                np.stack([cb.sum(0) / y.sum(0), cr.sum(0) / y.sum(0)], -1),
-                               rtol=1e-6)
+                               rtol=1e-6 if expected_frames is None else 1e-5)
     residual = [np.maximum((c * c).sum(0) - (c * y).sum(0) ** 2 / (y * y).sum(0), 0)
                 for c in (cb, cr)]
     np.testing.assert_allclose(group["chroma_spread"][...],

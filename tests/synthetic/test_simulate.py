@@ -128,6 +128,7 @@ def test_refuses_a_non_empty_folder_then_overwrites(tmp_path):
     out = tmp_path / "acq"
     out.mkdir()
     (out / "video.mkv").write_text("old")
+    (out / "acquisition.json").write_text('{"simulation": {}}')  # an earlier simulation's
     args = {"scene": "canvas", "path_density": 2.0, "size": 16, "lattice": (4, 4),
             "progress": False}
     with pytest.raises(LtmError, match="is not empty; pass --overwrite"):

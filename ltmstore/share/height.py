@@ -1,0 +1,229 @@
+"""The surface as a surface: a normal map integrated into a height map, written as a 16-bit
+image and as PLY and OBJ meshes in millimetres (``ltm maps --height``, ``--mesh``).
+
+A unit normal ``n`` (x right, y up, z towards the camera) is the gradient of the height ``z``:
+``dz/dx = -nx / nz`` along a row, ``dz/drow = ny / nz`` down a column (rows grow with -y), in
+pixels per pixel. Two well-kept integrations of that gradient field:
+
+* ``"fc"``: Frankot and Chellappa (1988): the integrable surface nearest the gradients in the
+  Fourier domain, on the field mirrored to twice its size (an even extension, so that the
+  periodic transform sees no jump at the borders);
+* ``"poisson"`` (the default): the least-squares height of the forward differences (the
+  discrete Poisson equation with Neumann borders), solved exactly with the DCT (Simchony,
+  Chellappa and Shao 1990).
+
+Both leave one unknown, the height's offset: the maps put the lowest point at 0. Normals that
+are not finite (a tile that chose another method) count as facing the camera; ``nz`` is kept at
+least :data:`MIN_NZ` (slopes at most 20 pixels per pixel).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from scipy import fft
+
+from ltmstore.core.errors import LtmError
+
+INTEGRATIONS = ("poisson", "fc")
+DEFAULT_INTEGRATION = "poisson"
+MIN_NZ = 0.05
+MESH_VERTICES = 1_000_000  # the default mesh step keeps at most about this many vertices
+
+
+def gradients(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(dz/dcol, dz/drow)`` of unit normals ``(H, W, 3)``, each ``(H, W)`` float64, in pixels
+    per pixel; non-finite normals face the camera."""
+    n = np.asarray(normal, dtype=np.float64)
+    if n.ndim != 3 or n.shape[-1] != 3:
+        raise LtmError(f"normal map of shape {n.shape}; expected (height, width, 3)")
+    n = np.where(np.isfinite(n).all(axis=-1, keepdims=True), n, [0.0, 0.0, 1.0])
+    nz = np.maximum(n[..., 2], MIN_NZ)
+    return -n[..., 0] / nz, n[..., 1] / nz
+
+
+def frankot_chellappa(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """The height ``(H, W)`` whose gradient (``gx`` along columns, ``gy`` along rows) is
+    nearest ``(gx, gy)`` among integrable fields, in the Fourier domain, on the gradients
+    mirrored to ``(2H, 2W)`` (Frankot and Chellappa 1988). Mean zero."""
+    h, w = gx.shape
+    wx = (2 * np.pi * fft.rfftfreq(2 * w))[None, :]
+    wy = (2 * np.pi * fft.fftfreq(2 * h))[:, None]
+    # single precision, real transforms: a 12 MP map mirrored is 48 M values
+    ex = np.block([[gx, -gx[:, ::-1]], [gx[::-1], -gx[::-1, ::-1]]]).astype(np.float32)
+    z = fft.rfft2(ex, workers=-1) * (-1j * wx).astype(np.complex64)
+    del ex
+    ey = np.block([[gy, gy[:, ::-1]], [-gy[::-1], -gy[::-1, ::-1]]]).astype(np.float32)
+    z += fft.rfft2(ey, workers=-1) * (-1j * wy).astype(np.complex64)
+    del ey
+    denom = (wx**2 + wy**2).astype(np.float32)
+    denom[0, 0] = 1.0
+    z /= denom
+    z[0, 0] = 0.0
+    height = fft.irfft2(z, s=(2 * h, 2 * w), workers=-1)[:h, :w].astype(np.float64)
+    return height - height.mean()
+
+
+def poisson(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """The least-squares height ``(H, W)`` of the forward differences: ``z[r, c+1] - z[r, c]``
+    nearest the mean of ``gx`` at both pixels, likewise down the rows; the normal equations
+    (a Neumann Laplacian) solved exactly with the DCT-II. Mean zero."""
+    h, w = gx.shape
+    ex = np.zeros((h, w + 1))
+    ex[:, 1:w] = 0.5 * (gx[:, 1:] + gx[:, :-1])
+    ey = np.zeros((h + 1, w))
+    ey[1:h] = 0.5 * (gy[1:] + gy[:-1])
+    rhs = (ex[:, :-1] - ex[:, 1:]) + (ey[:-1] - ey[1:])  # D^T g
+    eig = (2 - 2 * np.cos(np.pi * np.arange(h) / h))[:, None] + \
+        (2 - 2 * np.cos(np.pi * np.arange(w) / w))[None, :]
+    eig[0, 0] = 1.0
+    z = fft.dctn(rhs, type=2, norm="ortho") / eig
+    z[0, 0] = 0.0
+    return fft.idctn(z, type=2, norm="ortho")
+
+
+def integrate(normal: np.ndarray, method: str = DEFAULT_INTEGRATION) -> np.ndarray:
+    """The height map of unit normals ``(H, W, 3)``, in pixels, lowest point 0.
+
+    Parameters
+    ----------
+    normal : ndarray, shape (H, W, 3)
+        Unit normals, x right, y up, z towards the camera.
+    method : {"poisson", "fc"}
+        Least squares with the DCT, or Frankot-Chellappa with mirror padding.
+
+    Returns
+    -------
+    ndarray of float64, shape (H, W)
+    """
+    if method not in INTEGRATIONS:
+        raise LtmError(f"integration {method!r} must be one of {', '.join(INTEGRATIONS)}")
+    gx, gy = gradients(normal)
+    height = (poisson if method == "poisson" else frankot_chellappa)(gx, gy)
+    return height - height.min()
+
+
+def normals_of(height: np.ndarray) -> np.ndarray:
+    """Unit normals ``(H, W, 3)`` of a height map in pixels (central differences): the
+    inverse of :func:`integrate`, to check an integration against the normals it came from."""
+    gy, gx = np.gradient(np.asarray(height, dtype=np.float64))
+    n = np.stack([-gx, gy, np.ones_like(gx)], axis=-1)
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def height_png(height: np.ndarray) -> np.ndarray:
+    """``height`` as 16-bit grey: lowest 0, highest 65535 (all 0 for a flat map)."""
+    span = float(height.max() - height.min())
+    scaled = (height - height.min()) / span if span > 0 else np.zeros_like(height)
+    return np.round(scaled * 65535).astype(np.uint16)
+
+
+def mesh_step(shape: tuple[int, int], step: int | None = None) -> int:
+    """The grid step of the mesh: ``step``, or the smallest keeping at most
+    :data:`MESH_VERTICES` vertices."""
+    if step is None:
+        return max(1, int(np.ceil(np.sqrt(shape[0] * shape[1] / MESH_VERTICES))))
+    if isinstance(step, bool) or int(step) != step or step < 1:
+        raise LtmError(f"--mesh-step {step!r} must be a whole number of pixels >= 1")
+    return int(step)
+
+
+def grid_mesh(height: np.ndarray, pixel_mm: float, step: int = 1
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``(n, 3)`` float32 in mm and triangles ``(m, 3)`` int32 of the height map
+    sampled every ``step`` pixels: x right and y up from the image centre, z the height
+    (``height`` in pixels times ``pixel_mm``); two triangles per grid cell, counter-clockwise
+    seen from the camera (+z)."""
+    h, w = height.shape
+    rows, cols = np.arange(0, h, step), np.arange(0, w, step)
+    r, c = np.meshgrid(rows, cols, indexing="ij")
+    vertices = np.column_stack([((c + 0.5 - w / 2) * pixel_mm).ravel(),
+                                ((h / 2 - r - 0.5) * pixel_mm).ravel(),
+                                (height[r, c] * pixel_mm).ravel()]).astype(np.float32)
+    nr, nc = len(rows), len(cols)
+    idx = np.arange(nr * nc, dtype=np.int32).reshape(nr, nc)
+    a, b, c_, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    faces = np.concatenate([np.stack([a, b, c_], -1).reshape(-1, 3),
+                            np.stack([c_, b, d], -1).reshape(-1, 3)])
+    return vertices, faces
+
+
+def ply_bytes(vertices: np.ndarray, faces: np.ndarray, comment: str = "") -> bytes:
+    """A binary little-endian PLY: float32 ``x y z`` vertices, triangles as a uchar count and
+    int32 indices."""
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {line}" for line in comment.splitlines() if line]
+    header += [f"element vertex {len(vertices)}", "property float x", "property float y",
+               "property float z", f"element face {len(faces)}",
+               "property list uchar int vertex_indices", "end_header"]
+    face = np.zeros(len(faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    face["n"], face["i"] = 3, faces
+    return ("\n".join(header) + "\n").encode() + \
+        np.ascontiguousarray(vertices, dtype="<f4").tobytes() + face.tobytes()
+
+
+def obj_bytes(vertices: np.ndarray, faces: np.ndarray, comment: str = "") -> bytes:
+    """A Wavefront OBJ: ``v x y z`` lines (mm, 4 decimals) and ``f`` lines (1-based)."""
+    head = "".join(f"# {line}\n" for line in comment.splitlines() if line)
+    vlines = "\n".join(f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in vertices.tolist())
+    flines = "\n".join(f"f {a} {b} {c}" for a, b, c in (faces + 1).tolist())
+    return (head + vlines + "\n" + flines + "\n").encode()
+
+
+def pixel_size(width_px: int, pixel_mm: float | None, object_width_mm: float | None
+               ) -> float | None:
+    """The pixel size in mm from ``--pixel-size`` or ``--object-width`` (at most one)."""
+    if pixel_mm is not None and object_width_mm is not None:
+        raise LtmError("give --pixel-size or --object-width, not both")
+    for name, value in (("--pixel-size", pixel_mm), ("--object-width", object_width_mm)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise LtmError(f"{name} {value!r} must be a length in mm > 0")
+    if object_width_mm is not None:
+        return float(object_width_mm) / width_px
+    return None if pixel_mm is None else float(pixel_mm)
+
+
+def write_height(normal: np.ndarray, out_dir: str | os.PathLike, *,
+                 method: str = DEFAULT_INTEGRATION, pixel_mm: float | None = None,
+                 mesh: bool = False, step: int | None = None) -> tuple[dict[str, Path], dict]:
+    """Integrate ``normal`` and write ``height.png`` (16-bit, lowest 0, highest 65535) and
+    ``height.json`` (its range in pixels and, with ``pixel_mm``, in mm), and with ``mesh``
+    ``height.ply`` and ``height.obj`` in mm (needs ``pixel_mm``) into ``out_dir``.
+
+    Returns
+    -------
+    files : dict
+        The path of each file written, by kind.
+    info : dict
+        What ``height.json`` holds: the integration, the range in pixels (and mm), the mesh's
+        step and size.
+    """
+    import json
+
+    from ltmstore.core.imagefile import write_bytes_atomic, write_image
+
+    if mesh and pixel_mm is None:
+        raise LtmError("--mesh writes millimetres: give the scale with --pixel-size MM or "
+                       "--object-width MM")
+    step = mesh_step(normal.shape[:2], step)
+    height = integrate(normal, method)
+    out = Path(out_dir)
+    files = {"height": write_image(out / "height.png", height_png(height), what="height map")}
+    info = {"integration": method, "range_px": float(height.max()),
+            "png": "0 at the lowest point, 65535 at the highest, linear"}
+    if pixel_mm is not None:
+        info.update(pixel_mm=pixel_mm, range_mm=float(height.max()) * pixel_mm)
+    if mesh:
+        vertices, faces = grid_mesh(height, pixel_mm, step)
+        note = (f"ltm maps height ({method}), mm, every {step} px, x right y up z height\n")
+        files["ply"] = write_bytes_atomic(out / "height.ply", ply_bytes(vertices, faces, note),
+                                          what="mesh")
+        files["obj"] = write_bytes_atomic(out / "height.obj", obj_bytes(vertices, faces, note),
+                                          what="mesh")
+        info.update(mesh_step_px=step, vertices=len(vertices), triangles=len(faces))
+    files["json"] = write_bytes_atomic(out / "height.json",
+                                       (json.dumps(info, indent=1) + "\n").encode(),
+                                       what="height info")
+    return files, info
