@@ -20,14 +20,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from rti_scale import run  # noqa: E402
+from rti_scale import machine, run, size_options  # noqa: E402
 from rti_speed import load, ltm_command, resized_capture  # noqa: E402
 
 from ltmstore.core.provenance import commit  # noqa: E402
@@ -71,23 +70,14 @@ def chart(result: dict, path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=Path("../shared/data"), type=Path)
-    parser.add_argument("--out", default=Path("bench/results"), type=Path)
-    parser.add_argument("--sizes", default="1,4,12,24", help="megapixels, comma-separated")
-    parser.add_argument("--lights", default=47, type=int)
-    parser.add_argument("--old", type=Path, help="a tree of earlier code (PYTHONPATH=OLD)")
-    parser.add_argument("--old-label", default="old code")
-    parser.add_argument("--old-sizes", help="sizes at which --old runs (default: all)")
+    size_options(parser, "1,4,12,24")
     parser.add_argument("--chart", type=Path, help="only redraw the chart of this result JSON")
     args = parser.parse_args()
     if args.chart is not None:
         chart(json.loads(args.chart.read_text()), args.chart.with_suffix(".png"))
         return
     old_sizes = set((args.old_sizes or args.sizes).split(","))
-    result = {"machine": {"platform": platform.platform(), "python": platform.python_version(),
-                          "cores": os.cpu_count(),
-                          "memory_gib": round(os.sysconf("SC_PAGE_SIZE")
-                                              * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)},
+    result = {"machine": machine(),
               "command": "python " + " ".join(sys.argv), "commit": commit(),
               "lights": args.lights, "goal_gib": GOAL_GIB,
               "old_label": args.old_label if args.old else None, "sizes": {}}

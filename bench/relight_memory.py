@@ -21,13 +21,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from rti_scale import run  # noqa: E402
+from rti_scale import machine, run, size_options  # noqa: E402
 from rti_speed import load, ltm_command, resized_capture  # noqa: E402
 
 from ltmstore.core.provenance import commit  # noqa: E402
@@ -66,19 +65,10 @@ def measure(lp: Path, tmp: Path, old: Path | None) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=Path("../shared/data"), type=Path)
-    parser.add_argument("--out", default=Path("bench/results"), type=Path)
-    parser.add_argument("--sizes", default="1,4", help="megapixels, comma-separated")
-    parser.add_argument("--lights", default=47, type=int)
-    parser.add_argument("--old", type=Path, help="a tree of earlier code (PYTHONPATH=OLD)")
-    parser.add_argument("--old-label", default="old code")
-    parser.add_argument("--old-sizes", help="sizes at which --old runs (default: all)")
+    size_options(parser, "1,4")
     args = parser.parse_args()
     old_sizes = set((args.old_sizes or args.sizes).split(","))
-    result = {"machine": {"platform": platform.platform(), "python": platform.python_version(),
-                          "cores": os.cpu_count(),
-                          "memory_gib": round(os.sysconf("SC_PAGE_SIZE")
-                                              * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)},
+    result = {"machine": machine(),
               "command": "python " + " ".join(sys.argv), "commit": commit(),
               "lights": args.lights, "relight_directions": LIGHTS,
               "old_label": args.old_label if args.old else None, "load_start": load(),

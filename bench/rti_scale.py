@@ -37,6 +37,25 @@ sys.path.insert(0, str(Path(__file__).parent))
 from rti_speed import load, ltm_command, resized_capture  # noqa: E402
 
 
+def machine() -> dict:
+    """This machine as a result JSON records it: platform, Python, cores, memory (GiB)."""
+    return {"platform": platform.platform(), "python": platform.python_version(),
+            "cores": os.cpu_count(),
+            "memory_gib": round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30,
+                                1)}
+
+
+def size_options(parser: argparse.ArgumentParser, sizes: str) -> None:
+    """The options of a bench over resized classic captures beside an older tree's code."""
+    parser.add_argument("--data", default=Path("../shared/data"), type=Path)
+    parser.add_argument("--out", default=Path("bench/results"), type=Path)
+    parser.add_argument("--sizes", default=sizes, help="megapixels, comma-separated")
+    parser.add_argument("--lights", default=47, type=int)
+    parser.add_argument("--old", type=Path, help="a tree of earlier code (PYTHONPATH=OLD)")
+    parser.add_argument("--old-label", default="old code")
+    parser.add_argument("--old-sizes", help="sizes at which --old runs (default: all)")
+
+
 def run(command: list[str], env: dict | None = None) -> tuple[float, float]:
     """Wall seconds and peak resident memory (GiB) of ``command`` (its own, from wait4)."""
     with tempfile.TemporaryFile() as log:  # a pipe would fill with progress bars and block
