@@ -153,9 +153,10 @@ def reconstruct_snr(acq: Path, truth: Path, lattice: tuple[int, int]) -> dict:
             "n_frames": ingest.get("n_frames"), "seconds": time.perf_counter() - start}
 
 
-def true_pose_copy(acq: Path, sim: dict) -> Path:
-    """The same capture with the true poses (and the same camera B calibration)."""
-    true_acq = acq.parent / "true_poses"
+def true_pose_copy(acq: Path, sim: dict, name: str = "true_poses") -> Path:
+    """The same capture with the true poses (and the same camera B calibration, where it was
+    written), in the folder ``name`` beside it (video hard-linked)."""
+    true_acq = acq.parent / name
     shutil.rmtree(true_acq, ignore_errors=True)
     true_acq.mkdir()
     video = Path(sim["paths"]["video"]).name
@@ -165,7 +166,10 @@ def true_pose_copy(acq: Path, sim: dict) -> Path:
     for key in ("time_offset", "time_offset_estimate", "phone_a", "camera_b"):
         meta.pop(key, None)
     if "camera_calibration" in meta:
-        shutil.copy2(acq / meta["camera_calibration"], true_acq / meta["camera_calibration"])
+        if (acq / meta["camera_calibration"]).exists():
+            shutil.copy2(acq / meta["camera_calibration"], true_acq / meta["camera_calibration"])
+        else:  # the calibration failed: the copy goes without it, as the capture did
+            meta.pop("camera_calibration")
     (true_acq / "acquisition.json").write_text(json.dumps(meta, indent=2))
     return true_acq
 

@@ -58,8 +58,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from phone_effects import LENSES, calibrate, ltm, sync, track  # noqa: E402
-from track_bench import link_or_copy  # noqa: E402
+from phone_effects import LENSES, calibrate, ltm, sync, track, true_pose_copy  # noqa: E402
 
 from ltmstore import __version__  # noqa: E402
 from ltmstore.judge.evaluate import compare_stores  # noqa: E402
@@ -140,27 +139,6 @@ def simulate(acq: Path, scene: str, capture: str, args) -> dict:
                        progress=False, board=False, effects=CAPTURES[capture])
     sim["simulate_s"] = time.perf_counter() - start
     return sim
-
-
-def true_pose_folder(acq: Path, name: str, sim: dict) -> Path:
-    """A copy of the acquisition with the true poses, beside it (video hard-linked)."""
-    out = acq.parent / name
-    shutil.rmtree(out, ignore_errors=True)
-    out.mkdir()
-    video = Path(sim["paths"]["video"]).name
-    link_or_copy(acq / video, out / video)
-    shutil.copy2(acq / "truth" / "poses_true.csv", out / "poses.csv")
-    meta = json.loads((acq / "acquisition.json").read_text())
-    for key in ("time_offset", "time_offset_estimate", "phone_a", "camera_b"):
-        meta.pop(key, None)
-    if "camera_calibration" in meta:
-        src = acq / meta["camera_calibration"]
-        if src.exists():
-            shutil.copy2(src, out / meta["camera_calibration"])
-        else:
-            meta.pop("camera_calibration")
-    (out / "acquisition.json").write_text(json.dumps(meta, indent=2))
-    return out
 
 
 def use_true_intrinsics(folder: Path, acq: Path) -> None:
@@ -310,11 +288,11 @@ def run_capture(work: Path, scene: str, capture: str, args) -> dict:
     ideal = work / f"{scene}_none" / "raw"
     if (acq / "calibration_b.mkv").exists():
         row["calibration"] = calibrate(acq, sim)
-    row["product"] = measure(true_pose_folder(acq, "product", sim), truth, lattice, args.color)
+    row["product"] = measure(true_pose_copy(acq, sim, "product"), truth, lattice, args.color)
     _save(work, row)
     args.capture_now = capture
     if capture in ("distortion", "all-locked", "led-falloff"):
-        folder = true_pose_folder(acq, "oracle", sim)
+        folder = true_pose_copy(acq, sim, "oracle")
         if "distortion" in CAPTURES[capture]:
             use_true_intrinsics(folder, acq)
         oracle_truth = truth
