@@ -272,13 +272,13 @@ def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
              extent: dict | None) -> tuple[Geometry, dict | None]:
     """``geometry`` with the exponent of the LED's ``cos^k`` beam of a near-light capture
     placed by ``extent`` (None: no surface model, no beam), and its record: ingest's
-    estimate (poses with the LED's axis, tilted: an axis held level leaves the exponent
-    unseen there, recorded as 0 with a standard error of 0), else the held-out choice of
+    estimate (poses with the LED's axis, tilted: ingest records an axis held level as the
+    profile's, not estimated), else the held-out choice of
     :func:`ltmstore.stages.surface.choose_led_exponent` on a sample of the image's pixels."""
     if extent is None:
         return geometry, None
     beam = st.stages(group).get("ingest", {}).get("beam") or {}
-    if beam.get("source") == "estimated" and (beam.get("stderr") or 0) > 0:
+    if beam.get("source") == "estimated":
         k, record = float(beam["exponent"]), {"exponent": float(beam["exponent"]),
                                               "source": "ingest"}
     else:
