@@ -118,6 +118,12 @@ def register(sub) -> None:
                    "(`ltm info` lists them, `ltm evaluate --holdout-lights` scores them): "
                    "`ltm relight --direction` at one of them writes the image to compare with "
                    "its photograph")
+    p.add_argument("--transfer", choices=("srgb", "linear"), default=None,
+                   help="how the photographs' values encode light (default: what the files "
+                   "say: a float TIFF or a raw photograph is linear, a PNG sRGB or gAMA chunk "
+                   "or an ICC profile's tone curve; else srgb). Photographs are 8-bit, 16-bit "
+                   "(PNG, TIFF; raw/DNG developed linear by LibRaw) or float (TIFF), one depth "
+                   "per capture, kept at their precision")
     p.set_defaults(func=cmd_ingest_rti)
 
     p = sub.add_parser("reconstruct", help="resample onto a lattice and solve every pixel",
@@ -198,6 +204,10 @@ def register(sub) -> None:
     p.add_argument("--ev", type=number, default=0.0, metavar="STOPS",
                    help=f"stops added to --exposure: linear light times 2**STOPS, from "
                    f"{-EV_LIMIT:g} to {EV_LIMIT:g} (default: 0)")
+    p.add_argument("--depth", default="8", metavar="8|16|float",
+                   help="8: 8-bit images (default); 16: 16-bit PNG or TIFF in the capture's "
+                   "transfer; float: float32 TIFF of linear light (times the exposure's gain, "
+                   "not clipped)")
     p.add_argument("--overwrite", action="store_true", help="replace existing image files")
     p.set_defaults(func=cmd_relight)
 
@@ -341,7 +351,8 @@ def refuse_classic_capture(acquisition: str, store: str) -> None:
 def cmd_ingest_rti(a: argparse.Namespace) -> None:
     from ltmstore.stages.ingest_rti import ingest_rti
 
-    print_json(ingest_rti(a.lp, a.store, holdout_every=a.holdout_lights, overwrite=a.overwrite))
+    print_json(ingest_rti(a.lp, a.store, holdout_every=a.holdout_lights, overwrite=a.overwrite,
+                          transfer=a.transfer))
 
 
 def cmd_reconstruct(a: argparse.Namespace) -> None:
@@ -424,10 +435,11 @@ def cmd_relight(a: argparse.Namespace) -> None:
 
     from ltmstore.core.imagefile import write_image
     from ltmstore.core.store import open_store
-    from ltmstore.core.transfer import check_exposure, encode_images
-    from ltmstore.stages.relight import LightClampWarning, relight
+    from ltmstore.core.transfer import check_depth, check_exposure
+    from ltmstore.stages.relight import LightClampWarning, encoded_images, relight
 
     check_exposure(a.exposure, a.ev)
+    depth = check_depth(a.depth)
     ds = open_store(a.store)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LightClampWarning)
@@ -436,27 +448,29 @@ def cmd_relight(a: argparse.Namespace) -> None:
         directions = None if a.direction is None else np.array(a.direction)
         images = relight(ds, lights, directions=directions, view=a.view)  # lazy: checks only
         outputs = image_paths(a.output, images.sizes["light"], combined=a.sum,
-                              overwrite=a.overwrite, inputs=(a.store,))
-        images = (images.sum("light").values[None] if len(outputs) == 1 else images.values)
+                              overwrite=a.overwrite, inputs=(a.store,), depth=depth)
+        if len(outputs) == 1:
+            images = images.sum("light").expand_dims("light")
     for w in caught:
         print(f"ltm: warning: {w.message}", file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-    for out, image in zip(outputs, encode_images(images, transfer, exposure=a.exposure,
-                                                 ev=a.ev), strict=True):
-        write_image(out, image)  # whole or not at all: a full disk leaves no file
+    for out, image in zip(outputs, encoded_images(images, transfer, exposure=a.exposure,
+                                                  ev=a.ev, depth=depth), strict=True):
+        # whole or not at all: a full disk leaves no file; a 16-bit PNG says its transfer
+        write_image(out, image, transfer=transfer if depth == 16 else None)
         print(f"wrote {out}")
 
 
 def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool,
-                inputs: tuple = ()) -> list[Path]:
+                inputs: tuple = (), depth: int | str = 8) -> list[Path]:
     """The images of ``n`` lights: one (``combined``, or one light), else one per light named
     by ``pattern`` with ``{i}`` (or ``-i`` before the suffix); existing ones refused unless
     ``overwrite``; a missing folder, a suffix that names no image format or a path in one of
-    ``inputs`` (the store) refused."""
+    ``inputs`` (the store) refused; the suffix must hold images of ``depth``."""
     from ltmstore.core.imagefile import check_image_path
     from ltmstore.share.atomic import check_output
 
-    check_image_path(pattern)
+    check_image_path(pattern, depth)
     if combined and n > 1:
         paths = [Path(pattern.replace("{i}", "sum"))]
     elif "{i}" in pattern or n == 1:

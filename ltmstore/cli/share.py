@@ -115,6 +115,11 @@ def register_maps(sub) -> None:
     p.add_argument("--mesh-step", type=int, default=None, metavar="PX",
                    help="mesh vertices every PX pixels (default: the smallest step keeping "
                    "at most a million vertices)")
+    p.add_argument("--depth", choices=("8", "16", "float"), default="8",
+                   help="the maps' and material images' precision: 8 (as above), 16 (every "
+                   "image 16-bit PNG, same encodings) or float (float32 TIFF, .tif: the linear "
+                   "values behind the 8-bit images, unclipped; the normal n in [-1, 1]); the "
+                   "height map is 16-bit at every depth (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing OUT_DIR")
     p.set_defaults(func=cmd_maps)
 
@@ -130,7 +135,7 @@ def cmd_maps(a: argparse.Namespace) -> None:
              diffuse=1.0 if a.diffuse is None else a.diffuse,
              specular=1.0 if a.specular is None else a.specular, overwrite=a.overwrite,
              height=a.height, mesh=a.mesh, integration=a.integration, pixel_mm=a.pixel_size,
-             object_width_mm=a.object_width, mesh_step=a.mesh_step)
+             object_width_mm=a.object_width, mesh_step=a.mesh_step, depth=a.depth)
     print(f"wrote {r['path']} ({', '.join(r['files'])}; {r['width']}x{r['height']} px)")
     if r["relief"] is not None:
         mm = r["relief"].get("range_mm")

@@ -10,6 +10,8 @@ TRANSFERS = ("srgb", "linear")
 CAPTURE, AUTO = "capture", "auto"
 EXPOSURES = (CAPTURE, AUTO)  # how linear light is put on 8-bit images (see encode_images)
 EV_LIMIT = 20.0  # stops: beyond this either way every image is black or white
+FLOAT = "float"
+DEPTHS = (8, 16, FLOAT)  # what encode_images writes: uint8, uint16 code values, float32 light
 
 
 # Both curves work in float32 in place (one output array, no temporaries): they run on every
@@ -58,8 +60,12 @@ def transfer_lut(transfer: str, bits: int = 8) -> np.ndarray:
 def linearise(code: np.ndarray, lut: np.ndarray) -> np.ndarray:
     """``lut[code]``: the linear light of an image's code values by a :func:`transfer_lut`
     (float32). 8-bit images of up to four channels go through OpenCV's table lookup, about 2x
-    NumPy's gather on a 4K frame; anything else through NumPy."""
+    NumPy's gather on a 4K frame; other integer images through NumPy. A floating-point image
+    holds linear light already (a float TIFF or EXR is linear by convention; a reader that is
+    told otherwise decodes it first): returned as float32, the table unused."""
     code = np.asarray(code)
+    if np.issubdtype(code.dtype, np.floating):
+        return code.astype(np.float32, copy=False)
     if code.dtype == np.uint8 and lut.shape == (256,) and code.size and (
             code.ndim == 2 or (code.ndim == 3 and code.shape[2] <= 4)):
         import cv2
@@ -68,10 +74,34 @@ def linearise(code: np.ndarray, lut: np.ndarray) -> np.ndarray:
     return lut[code]
 
 
-def encode(linear: np.ndarray, transfer: str) -> np.ndarray:
-    """Linear light to 8-bit code values (rounded, clipped)."""
+def check_depth(depth: int | str) -> int | str:
+    """``depth`` as one of :data:`DEPTHS` (``8``, ``16`` or ``"float"``; ``"8"`` and ``"16"``
+    as given on a command line are taken too).
+
+    Raises
+    ------
+    LtmError
+        For anything else, naming it.
+    """
+    if not isinstance(depth, bool):
+        for known in DEPTHS:
+            if depth == known or (isinstance(depth, str) and depth.strip().lower() == str(known)):
+                return known
+    raise LtmError(f"depth {depth!r} is unknown; expected one of "
+                   f"{', '.join(str(d) for d in DEPTHS)}")
+
+
+def encode(linear: np.ndarray, transfer: str, depth: int | str = 8) -> np.ndarray:
+    """Linear light to code values (rounded, clipped) of ``depth`` bits: ``uint8`` (8) or
+    ``uint16`` (16); ``"float"``: the linear values themselves as float32 (no transfer, no
+    clipping: light beyond white is kept)."""
     _check(transfer)
+    depth = check_depth(depth)
+    if depth == FLOAT:
+        return np.asarray(linear, dtype=np.float32)
     v = linear_to_srgb(linear) if transfer == "srgb" else np.clip(linear, 0, 1)
+    if depth == 16:
+        return np.round(np.asarray(v, dtype=np.float64) * 65535).astype(np.uint16)
     return np.round(np.asarray(v) * 255).astype(np.uint8)
 
 
@@ -103,8 +133,8 @@ def exposure_gain(images: np.ndarray, exposure: str = CAPTURE, ev: float = 0.0) 
 
 
 def encode_images(images: np.ndarray, transfer: str, *, exposure: str = CAPTURE,
-                  ev: float = 0.0) -> np.ndarray:
-    """Linear RGB images ``(n, y, x, 3)`` (or any shape) to 8-bit code values.
+                  ev: float = 0.0, depth: int | str = 8) -> np.ndarray:
+    """Linear RGB images ``(n, y, x, 3)`` (or any shape) to code values of ``depth``.
 
     Parameters
     ----------
@@ -120,11 +150,17 @@ def encode_images(images: np.ndarray, transfer: str, *, exposure: str = CAPTURE,
     ev : float
         Stops added to that exposure (linear values times ``2**ev``), at most
         :data:`EV_LIMIT` either way.
+    depth : {8, 16, "float"}
+        8 (default): ``uint8`` code values in ``transfer``; 16: ``uint16`` code values in
+        ``transfer`` (``round(v * 65535)`` where 8 bits hold ``round(v * 255)``); ``"float"``:
+        ``float32`` linear light times the exposure's gain, no transfer and no clipping (for
+        a float TIFF: :func:`ltmstore.core.imagefile.write_image`).
 
     Returns
     -------
     numpy.ndarray
-        ``uint8`` code values, the shape of ``images``.
+        ``uint8``, ``uint16`` or ``float32`` values, the shape of ``images``.
     """
+    depth = check_depth(depth)
     return encode(np.asarray(images) * np.float32(exposure_gain(images, exposure, ev)),
-                  transfer)
+                  transfer, depth)

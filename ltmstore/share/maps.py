@@ -25,6 +25,12 @@ faded lobes (a highlight no photograph saw is not shown, nor enhanced).
 
 With ``height``, :func:`maps` also integrates the normal map into a height map and meshes in
 millimetres (:mod:`ltmstore.share.height`).
+
+``depth`` (``ltm maps --depth``) sets the images' precision: 8 (default, as above), 16 (the
+same maps and material images as 16-bit PNG: sRGB ``round(v * 65535)``, roughness
+``round(alpha * 65535)``) or ``"float"`` (float32 TIFF, ``.tif``: the linear values behind the
+8-bit images, unclipped and without a transfer: albedo, specular and material images at the
+same exposure, the normal ``n`` itself in ``[-1, 1]``, roughness ``alpha``; NaN written 0).
 """
 
 from __future__ import annotations
@@ -37,8 +43,8 @@ import numpy as np
 
 from ltmstore.core.dims import COLOR
 from ltmstore.core.errors import LtmError
-from ltmstore.core.imagefile import write_bytes_atomic
-from ltmstore.core.transfer import linear_to_srgb
+from ltmstore.core.imagefile import write_bytes_atomic, write_image
+from ltmstore.core.transfer import FLOAT, check_depth, encode
 from ltmstore.share.atomic import atomic_output, check_output
 from ltmstore.solve import physical
 from ltmstore.stages import surface as sf
@@ -165,10 +171,35 @@ def _white(linear: np.ndarray) -> float:
     return max(float(np.percentile(finite, WHITE_PERCENTILE)) if finite.size else 0.0, 1e-12)
 
 
-def _display(linear: np.ndarray) -> np.ndarray:
-    """8-bit sRGB of ``linear``, scaled so that its 99.5th percentile is white (NaN: black)."""
-    return np.round(linear_to_srgb(np.nan_to_num(linear / _white(linear))) * 255
-                    ).astype(np.uint8)
+def _display(linear: np.ndarray, depth: int | str = 8) -> np.ndarray:
+    """sRGB of ``linear`` at ``depth`` (:func:`ltmstore.core.transfer.encode`; float: linear),
+    scaled so that its 99.5th percentile is white (NaN: black)."""
+    return encode(np.nan_to_num(linear / _white(linear)), "srgb", depth)
+
+
+def _fraction(value: np.ndarray, depth: int | str) -> np.ndarray:
+    """Values in ``[0, 1]`` as grey code values of ``depth`` (no transfer; float: as they
+    are, float32)."""
+    if depth == FLOAT:
+        return value.astype(np.float32)
+    top = 65535 if depth == 16 else 255
+    return np.round(value * top).astype(np.uint16 if depth == 16 else np.uint8)
+
+
+def _normal_image(normal: np.ndarray, depth: int | str) -> np.ndarray:
+    """The normal map: 16-bit ``(n / 2 + 1 / 2) * 65535`` at depths 8 and 16, ``n`` as float32
+    at ``"float"`` (NaN: 0 as float, mid-grey as 16-bit, as before)."""
+    if depth == FLOAT:
+        return np.nan_to_num(normal).astype(np.float32)
+    return np.round(np.nan_to_num(normal * 0.5 + 0.5).clip(0, 1) * 65535).astype(np.uint16)
+
+
+def _write(path: Path, image: np.ndarray) -> Path:
+    """A map or material image: integer ones as PNG (:func:`_write_png`), float ones as a
+    float32 TIFF beside it (``path`` with ``.tif``)."""
+    if np.issubdtype(image.dtype, np.floating):
+        return write_image(path.with_suffix(".tif"), image, what="map")
+    return _write_png(path, image)
 
 
 def _write_png(path: Path, rgb_or_grey: np.ndarray) -> Path:
@@ -205,8 +236,8 @@ def _faded_roughness(roughness: np.ndarray, support: np.ndarray) -> np.ndarray:
     return np.nan_to_num(support * roughness + (1 - support) * typical).clip(0, 1)
 
 
-def write_maps(ds, out_dir: str | os.PathLike, *, support: np.ndarray | None = None
-               ) -> dict[str, Path]:
+def write_maps(ds, out_dir: str | os.PathLike, *, support: np.ndarray | None = None,
+               depth: int | str = 8) -> dict[str, Path]:
     """Write the surface maps of a store as PNG files in ``out_dir`` (created if missing).
 
     Parameters
@@ -217,6 +248,9 @@ def write_maps(ds, out_dir: str | os.PathLike, *, support: np.ndarray | None = N
         Folder of the images.
     support : ndarray, optional
         :func:`lobe_support` of ``ds`` where it is already at hand.
+    depth : {8, 16, "float"}
+        The images' precision (see the module's note): 8 as described below, 16 every map
+        16-bit PNG, ``"float"`` every map float32 TIFF (``.tif``).
 
     Returns
     -------
@@ -225,18 +259,18 @@ def write_maps(ds, out_dir: str | os.PathLike, *, support: np.ndarray | None = N
         and ``roughness`` (8-bit grey); specular and roughness faded where the photographs do
         not support the lobe (:func:`lobe_support`).
     """
+    depth = check_depth(depth)
     require_surface(ds)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     normal = ds[sf.NORMAL].values.astype(np.float64)
     support = lobe_support(ds) if support is None else support
-    images = {"normal": np.round(np.nan_to_num(normal * 0.5 + 0.5).clip(0, 1) * 65535
-                                 ).astype(np.uint16),
-              "albedo": _display(ds[sf.ALBEDO].values),
-              "specular": _display(shown_specular(ds, support)),
-              "roughness": np.round(_faded_roughness(ds[sf.ROUGHNESS].values, support) * 255
-                                    ).astype(np.uint8)}
-    return {name: _write_png(out / f"{name}.png", image) for name, image in images.items()}
+    images = {"normal": _normal_image(normal, depth),
+              "albedo": _display(ds[sf.ALBEDO].values, depth),
+              "specular": _display(shown_specular(ds, support), depth),
+              "roughness": _fraction(_faded_roughness(ds[sf.ROUGHNESS].values, support),
+                                     depth)}
+    return {name: _write(out / f"{name}.png", image) for name, image in images.items()}
 
 
 def render_material(ds, directions: np.ndarray | Sequence[Sequence[float]], *,
@@ -280,22 +314,25 @@ def render_material(ds, directions: np.ndarray | Sequence[Sequence[float]], *,
 
 def write_material(ds, out_dir: str | os.PathLike, directions: np.ndarray, *,
                    diffuse: float = 1.0, specular: float = 1.0,
-                   support: np.ndarray | None = None) -> list[Path]:
+                   support: np.ndarray | None = None, depth: int | str = 8) -> list[Path]:
     """Write :func:`render_material` images as 8-bit sRGB ``material_000.png``, ... in
     ``out_dir``, at one exposure: the albedo map's white (a surface facing the light with the
-    99.5th-percentile albedo is white), so that scaling the material shows."""
+    99.5th-percentile albedo is white), so that scaling the material shows. ``depth`` 16:
+    16-bit sRGB PNG; ``"float"``: float32 linear TIFF (``material_000.tif``, ...) at that
+    exposure."""
+    depth = check_depth(depth)
     images = render_material(ds, directions, diffuse=diffuse, specular=specular,
                              support=support)
-    codes = np.round(linear_to_srgb(images / _white(ds[sf.ALBEDO].values)) * 255
-                     ).astype(np.uint8)
-    return [_write_png(Path(out_dir) / MATERIAL.format(i), c) for i, c in enumerate(codes)]
+    codes = encode(images / _white(ds[sf.ALBEDO].values), "srgb", depth)
+    return [_write(Path(out_dir) / MATERIAL.format(i), c) for i, c in enumerate(codes)]
 
 
 def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
          directions: np.ndarray | None = None, diffuse: float = 1.0, specular: float = 1.0,
          overwrite: bool = False, height: bool = False, mesh: bool = False,
          integration: str = "poisson", pixel_mm: float | None = None,
-         object_width_mm: float | None = None, mesh_step: int | None = None) -> dict:
+         object_width_mm: float | None = None, mesh_step: int | None = None,
+         depth: int | str = 8) -> dict:
     """``ltm maps``: the surface maps of ``store`` and, with ``directions``, its relit images
     with the material changed, in a new folder ``out_dir`` written atomically (never the
     store, a folder in it or one holding it: :func:`ltmstore.core.paths.check_output`).
@@ -303,7 +340,8 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
     With ``height`` (or ``mesh``), also the normals integrated into a height map
     (:func:`ltmstore.share.height.write_height`: ``integration`` ``"poisson"`` or ``"fc"``),
     with ``mesh`` its PLY and OBJ meshes in mm, every ``mesh_step`` pixels: the scale is
-    ``pixel_mm`` or ``object_width_mm`` (the store's width in mm).
+    ``pixel_mm`` or ``object_width_mm`` (the store's width in mm). ``depth`` (8, 16 or
+    ``"float"``) is the maps' and material images' precision (:func:`write_maps`).
 
     Returns
     -------
@@ -315,6 +353,7 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
     from ltmstore.share import height as ht
 
     check_material(directions, diffuse, specular)
+    depth = check_depth(depth)
     height = height or mesh
     if not height and (pixel_mm, object_width_mm, mesh_step) != (None, None, None):
         raise LtmError("--pixel-size, --object-width and --mesh-step scale the height map: "
@@ -334,10 +373,10 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
         require_material(ds)
     with atomic_output(out_dir, overwrite=overwrite, folder=True, inputs=(store,)) as tmp:
         support = lobe_support(ds)  # once for the maps and the material images
-        files = list(write_maps(ds, tmp, support=support).values())
+        files = list(write_maps(ds, tmp, support=support, depth=depth).values())
         if directions is not None:
             files += write_material(ds, tmp, directions, diffuse=diffuse, specular=specular,
-                                    support=support)
+                                    support=support, depth=depth)
         relief = None
         if height:
             written, relief = ht.write_height(

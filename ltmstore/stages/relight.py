@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Iterator
 
 import dask.array as da
 import numpy as np
@@ -66,9 +67,12 @@ from ltmstore.core.lights import (
 )
 from ltmstore.core.store import open_group, open_store
 from ltmstore.core.transfer import (
+    AUTO,
     CAPTURE,
+    check_depth,
     check_exposure,
-    encode_images,
+    encode,
+    exposure_gain,
     linear_to_srgb,
     srgb_to_linear,
 )
@@ -88,6 +92,9 @@ FAR_FROM_DATA_DEG = 25.0  # a light further than this from every observed one ge
 # chunks in flight the most of the rest), of 2**22 no less (relight(...).values' peak RSS;
 # the command's: bench/relight_memory.py).
 BAND_BYTES = 2**24
+# Relit images are computed and encoded (encoded_images) in bands of rows of at most this many
+# pixels: a whole 24 MP image at once peaked at 3.0 GiB for one light (bench/relight_memory.py).
+ENCODE_BAND_PIXELS = 2**20
 
 
 class LightClampWarning(UserWarning):
@@ -634,7 +641,80 @@ def write_gif(store, path: str | os.PathLike, lights, views=None, *, fps: float 
     check_image_path(path)
     ds = _as_dataset(store)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-    images = encode_images(relight(ds, lights, view=views).values, transfer,
-                           exposure=exposure, ev=ev)
+    images = np.stack(list(encoded_images(relight(ds, lights, view=views), transfer,
+                                          exposure=exposure, ev=ev)))
     write_image(path, images, what="GIF", duration=1000 / fps, loop=0)
     return os.fspath(path)
+
+
+def encoded_images(images: xr.DataArray, transfer: str, *, exposure: str = CAPTURE,
+                   ev: float = 0.0, depth: int | str = 8) -> Iterator[np.ndarray]:
+    """Each light's image of ``images`` encoded as
+    :func:`ltmstore.core.transfer.encode_images` encodes them all (the same values), computed a
+    band of rows at a time.
+
+    Parameters
+    ----------
+    images : xarray.DataArray
+        :func:`relight`'s lazy images, dims ``(light, y, x[, color])``.
+    transfer : str
+        The capture's transfer function.
+    exposure : {"capture", "auto"}
+    ev : float
+    depth : {8, 16, "float"}
+        As :func:`~ltmstore.core.transfer.encode_images`.
+
+    Yields
+    ------
+    numpy.ndarray
+        One light's code values ``(y, x[, color])``, light by light. At the capture's
+        exposure only one band's linear values are held beside them; ``auto`` holds every
+        light's linear values (float32), its gain being their 99.5th percentile.
+    """
+    exposure, _ = check_exposure(exposure, ev)
+    depth = check_depth(depth)
+    images = images.transpose(LIGHT, "y", ...)
+    bands = _bands(images)
+    if exposure == AUTO:
+        linear = np.empty(images.shape, np.float32)
+        for i, image in enumerate(linear):
+            for rows in bands:
+                image[rows] = images[i, rows].values
+        gain = np.float32(exposure_gain(linear, exposure, ev))
+        for image in linear:
+            yield _encode_bands(lambda rows, image=image: image[rows], image.shape, bands,
+                                gain, transfer, depth)
+        return
+    gain = np.float32(exposure_gain(np.empty(0), exposure, ev))
+    for i in range(images.sizes[LIGHT]):
+        yield _encode_bands(lambda rows, i=i: images[i, rows].values, images.shape[1:], bands,
+                            gain, transfer, depth)
+
+
+def _bands(images: xr.DataArray) -> list[slice]:
+    """Bands of rows of ``images`` ``(light, y, x, ...)`` of at most
+    :data:`ENCODE_BAND_PIXELS` pixels, of whole row chunks where a chunk is smaller."""
+    chunks = images.chunks[1] if images.chunks else (images.sizes["y"],)
+    most = max(1, ENCODE_BAND_PIXELS // max(images.sizes["x"], 1))
+    bands, start, stop = [], 0, 0
+    for rows in chunks:
+        if stop > start and stop + rows - start > most:
+            bands.append(slice(start, stop))
+            start = stop
+        stop += rows
+        while stop - start > most:  # a chunk taller than a band
+            bands.append(slice(start, start + most))
+            start += most
+    return [*bands, slice(start, stop)] if stop > start else bands
+
+
+def _encode_bands(linear, shape: tuple[int, ...], bands: list[slice], gain: np.float32,
+                  transfer: str, depth: int | str) -> np.ndarray:
+    """One image of ``shape`` whose rows ``linear(rows)`` gives band by band, encoded."""
+    out = None
+    for rows in bands:
+        code = encode(np.asarray(linear(rows)) * gain, transfer, depth)
+        if out is None:
+            out = np.empty(shape, code.dtype)
+        out[rows] = code
+    return out

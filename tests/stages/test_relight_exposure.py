@@ -274,3 +274,49 @@ def test_help_says_which_exposure_and_bad_values_are_one_line_errors(small_store
         err = capsys.readouterr().err
         assert err.startswith("ltm: error: ev ") and err.count("\n") == 1, err
         assert not (tmp_path / "x.png").exists()
+
+
+def test_images_computed_by_bands_are_the_whole_images(heldout, monkeypatch):
+    """``encoded_images`` computes and encodes a band of rows at a time (what bounds ``ltm
+    relight``'s memory at 24 MP): the same code values as the whole images encoded at once, at
+    the capture's exposure and at ``auto`` (one gain from every light's values)."""
+    from ltmstore.core.transfer import encode_images
+    from ltmstore.stages import relight as relight_module
+
+    directions = [light["direction"] for light in heldout["hidden"][:2]]
+    images = relight(open_store(heldout["store"]), directions=directions)
+    monkeypatch.setattr(relight_module, "ENCODE_BAND_PIXELS", 3 * images.sizes["x"])
+    assert len(relight_module._bands(images)) > 3  # several bands of whole row chunks
+    whole = images.values
+    for exposure, ev in (("capture", 0.0), ("auto", 0.5), ("capture", 1.0)):
+        banded = list(relight_module.encoded_images(images, "srgb", exposure=exposure, ev=ev))
+        np.testing.assert_array_equal(np.stack(banded),
+                                      encode_images(whole, "srgb", exposure=exposure, ev=ev))
+
+
+def test_relight_writes_16_bit_and_float_images(heldout):
+    """``ltm relight --depth 16`` writes the 16-bit code values of the same linear light
+    (within half an 8-bit step of the 8-bit image's), ``--depth float`` the linear values
+    themselves; a format that cannot hold the depth is one line and exit 2."""
+    import cv2
+    import tifffile
+
+    direction = heldout["hidden"][0]["direction"]
+    tmp, store = heldout["tmp"], heldout["store"]
+    linear = relight(open_store(store), directions=[direction]).values[0]
+    eight = relight_png(store, tmp / "d8.png", direction)
+    assert run("relight", store, "--direction", ",".join(map(repr, direction)), "-o",
+               tmp / "d16.png", "--depth", "16", "--overwrite")[0] == 0
+    sixteen = cv2.imread(str(tmp / "d16.png"), cv2.IMREAD_UNCHANGED)[..., ::-1]  # BGR
+    assert sixteen.dtype == np.uint16
+    np.testing.assert_array_equal(sixteen, encode(linear, "srgb", 16))
+    assert np.abs(sixteen / 257 - eight).max() <= 0.5 + 1e-9  # both round the same value
+    assert run("relight", store, "--direction", ",".join(map(repr, direction)), "-o",
+               tmp / "f.tif", "--depth", "float", "--ev", "1", "--overwrite")[0] == 0
+    np.testing.assert_array_equal(tifffile.imread(tmp / "f.tif"), linear * np.float32(2))
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = main(["relight", str(store), "--direction", "0,0,1", "-o", str(tmp / "d.jpg"),
+                     "--depth", "16"])
+    assert code == 2 and len(err.getvalue().strip().splitlines()) == 1
+    assert "16-bit" in err.getvalue() and not (tmp / "d.jpg").exists()
