@@ -170,6 +170,12 @@ def register(sub) -> None:
     p.add_argument("--keep-frames", action="store_true",
                    help="keep the decoded frames where auto stores the factors for lack of "
                    "disk (reconstructing again then needs no new `ltm ingest`)")
+    p.add_argument("--stage", choices=("classic", "all"), default="all",
+                   help="a classic RTI capture (auto, physical) reconstructs in two recorded "
+                   "stages: the classic fit (a complete, relightable store), then the surface "
+                   "refinement. classic: the first only; `ltm reconstruct STORE` later (same "
+                   "parameters) finishes the refinement, as it finishes one that was "
+                   "interrupted (default: %(default)s)")
     p.set_defaults(func=cmd_reconstruct)
 
     p = sub.add_parser("relight", help="render the store under new point lights",
@@ -365,7 +371,7 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
                        color={"auto": None, "on": True, "off": False}[a.color],
                        overwrite=a.overwrite, force=a.force,
                        light_major=not a.no_light_major, form=a.form,
-                       keep_frames=a.keep_frames)
+                       keep_frames=a.keep_frames, stage=a.stage)
     density = info["path_density"]
     print(f"lattice {info['lattice']['shape']}  K/M {info['sampling_ratio']:.3f}  "
           + ("" if density is None else f"path density {density:.1f}/{plane_unit(a.store)}  ")
@@ -377,7 +383,15 @@ def cmd_reconstruct(a: argparse.Namespace) -> None:
           f"solve {info['timings']['solve_s']:.1f} s" + placement_note(info.get("placement"))
           + (f"  factored: ranks {r['min']}-{r['max']}, mean {r['mean']:.1f}"
              if (r := info.get("ranks", {}).get("ltm")) else "") + form_note(info)
-          + frames_note(info.get("frames_dropped")))
+          + frames_note(info.get("frames_dropped")) + refinement_note(info))
+
+
+def refinement_note(info: dict) -> str:
+    """A far-light store's classic fit whose surface refinement is still to run."""
+    if info.get("refinement") != "pending":
+        return ""
+    return ("  classic fit only: relightable, surface refinement pending (`ltm reconstruct "
+            "STORE` with the same parameters finishes it)")
 
 
 def form_note(info: dict) -> str:

@@ -54,10 +54,16 @@ STAGE_VARIABLES = {
                     *(f"{n}{part}" for n in ("ltm", "ltm_cb", "ltm_cr")
                       for part in (factored.WEIGHTS, factored.BASIS, factored.RANKS,
                                    factored.TILE_WEIGHTS, factored.TILE_BASIS))),
+    # a far-light store's surface refinement (ltmstore.stages.reconstruct_far.REFINE), after
+    # the classic fit of "reconstruct": the arrays only it writes
+    "reconstruct_surface": ("normal", "albedo", "specular", "roughness", "ambient", "exposure"),
 }
 # The arrays each stage (re)writes, besides coordinates (:func:`complete_stage` records what it
-# wrote in them): ``ltm compact`` rewrites the LTM variables. Any other stage: every array.
-RECORDED_BY = {**STAGE_VARIABLES, "compact": STAGE_VARIABLES["reconstruct"]}
+# wrote in them): ``ltm compact`` rewrites the LTM variables; the surface refinement none of its
+# own (it completes the reconstruct record again, which records them). Any other stage: every
+# array.
+RECORDED_BY = {**STAGE_VARIABLES, "compact": STAGE_VARIABLES["reconstruct"],
+               "reconstruct_surface": ()}
 # The LTM variables (luminance, colour, and their light-major copies): written float16 by a lossy
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
 LTM_VARIABLES = ("ltm", "ltm_cb", "ltm_cr", "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light")

@@ -385,7 +385,8 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                 method: str = DEFAULT_METHOD, params: dict | None = None, auto: bool = True,
                 color: bool | None = None, tile: int | None = None, overwrite: bool = False,
                 resume: bool = True, force: bool = False, light_major: bool = True,
-                form: str = AUTO, keep_frames: bool = False, progress: bool = True) -> dict:
+                form: str = AUTO, keep_frames: bool = False, stage: str = "all",
+                progress: bool = True) -> dict:
     """Resample and reconstruct the LTM of an ingested store.
 
     A store without a complete ``ltm`` is written in place (an interrupted run of the same
@@ -447,6 +448,13 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
         they are dropped once the ``ltm`` is complete, as ``ltm compact`` drops them (at 4K,
         11 of a store's 16 GB): the disk is short, and a near-light store relights from its
         ``ltm`` alone; reconstructing again then needs a new ``ltm ingest``.
+    stage : {"all", "classic"}
+        A far-light store's ``auto`` and ``physical`` run in two recorded stages: the classic
+        fit (``reconstruct``: complete and relightable), then the surface refinement
+        (:data:`~ltmstore.stages.reconstruct_far.REFINE`), built on a linked copy and swapped
+        in when complete. ``classic`` runs the first only; a later run of the same
+        parameters (without ``overwrite``) finishes the second, as it finishes one that was
+        interrupted.
 
     Returns
     -------
@@ -484,10 +492,19 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     elif not far and params:
         raise LtmError(f"params {params!r} need a named method; auto chooses the method and its "
                        "parameters per tile")
+    if stage not in ("all", "classic"):
+        raise LtmError(f"stage {stage!r} must be one of all, classic")
+    if stage != "all" and not far:
+        raise LtmError(f"--stage {stage} splits the reconstruction of a classic RTI capture "
+                       f"(far lights); store {str(path)!r} holds near lights")
     st.check_writable(path)
     revise = bool(st.stages(group).get("reconstruct", {}).get("complete"))
-    if revise and not overwrite:
-        raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute it")
+    key = run_key(lattice=lattice, delta_rs=delta_rs, method=method, params=dict(params or {}),
+                  auto=auto, color=False, tile=tile)  # a far-light run's
+    pending = far and revise and not overwrite and _refinement_pending(group, key)
+    if revise and not overwrite and not (pending and stage == "all"):
+        raise LtmError(f"store {str(path)!r} already has an ltm; pass --overwrite to recompute "
+                       f"it{_pending_note(group, key) if far else ''}")
     if far:
         color = False  # relit colour comes from the frames at the fitted weights
     elif color is None:
@@ -514,7 +531,9 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
                light_major=light_major and form == "dense", form=form)
     try:
         with st.writing(path):
-            if not revise:
+            if far:
+                info = _far_stages(path, run, revise=revise, pending=pending, stage=stage)
+            elif not revise:
                 info = _on_cluster(path, client, scheduler, run)
             else:  # a good ltm exists: build the new one on a linked copy, swapped in when done
                 with st.revised_store(path) as side:
@@ -522,7 +541,7 @@ def reconstruct(path, *, client: Client | None = None, scheduler: str | None = N
     except OSError as exc:  # a full disk, a store made read-only during the run
         st.settle_writes()  # no write of this process lands after the error
         kept = ("the previous ltm is untouched" if revise
-                else "its reconstruct stage stays incomplete")
+                else _kept_note(path) if far else "its reconstruct stage stays incomplete")
         raise LtmError(f"cannot write store {str(path)!r}: {exc.strerror or exc}; {kept}") from exc
     if form_choice and form_choice["form"] == "factored" and not keep_frames:
         info["frames_dropped"] = _drop_frames(path)
@@ -574,16 +593,71 @@ def _warn_if_it_overflows(estimate: dict) -> None:
                       stacklevel=3)
 
 
-def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -> dict:
-    group = st.open_group(path, mode="r+")
-    if light_kind(group.attrs["acquisition"]) == FAR:  # a thread pool is enough
-        from ltmstore.stages.reconstruct_far import reconstruct_far
+def _refinement_pending(group: zarr.Group, key: dict) -> bool:
+    """Whether the store's far-light refinement was begun and not completed by a run of the
+    parameters ``key`` (stage 1 alone, or a run killed during stage 2)."""
+    from ltmstore.stages.reconstruct_far import REFINE
 
-        key = run_key(**{k: run[k] for k in ("lattice", "delta_rs", "method", "params", "auto",
-                                             "color", "tile")})
-        return reconstruct_far(group, lattice=run["lattice"], method=run["method"],
-                               tile=run["tile"], progress=run["progress"], key=key)
+    entry = st.stages(group).get(REFINE) or {}
+    return bool(entry) and not entry.get("complete") and entry.get("run") == key
+
+
+def _pending_note(group: zarr.Group, key: dict) -> str:
+    """How to finish a far-light store's pending refinement (empty where none is)."""
+    from ltmstore.stages.reconstruct_far import REFINE
+
+    entry = st.stages(group).get(REFINE) or {}
+    if not entry or entry.get("complete"):
+        return ""
+    run = entry.get("run") or {}
+    if run == key:
+        return " (the classic fit; `--stage all`, the default, finishes its surface refinement)"
+    return (f" (its surface refinement is pending for a run of other parameters: method "
+            f"{run.get('method')!r}, lattice {run.get('lattice')!r}, tile {run.get('tile')!r}, "
+            f"software {run.get('software')!r}; run those to finish it)")
+
+
+def _kept_note(path: str) -> str:
+    """What a failed far-light run left: its classic fit, or nothing complete."""
+    try:
+        done = st.stages(st.open_group(path)).get("reconstruct", {}).get("complete")
+    except (LtmError, OSError, ValueError):
+        done = False
+    return ("its classic fit is complete, its surface refinement is not" if done
+            else "its reconstruct stage stays incomplete")
+
+
+def _far_stages(path: str, run: dict, *, revise: bool, pending: bool, stage: str) -> dict:
+    """A far-light store's stages (:mod:`~ltmstore.stages.reconstruct_far`): the classic
+    fit in place (on a linked copy where it replaces a complete ``ltm``), unless it is there
+    and only its refinement is ``pending``; then, unless ``stage`` is ``classic``, the surface
+    refinement on a linked copy swapped in when complete, so that a killed run leaves the
+    classic store as it was, its refinement recorded as not complete."""
+    from ltmstore.stages import reconstruct_far as far
+
+    key = run_key(**{k: run[k] for k in ("lattice", "delta_rs", "method", "params", "auto",
+                                         "color", "tile")})
+    args = {k: run[k] for k in ("lattice", "method", "tile", "progress")}
+    two = far.refines(run["method"]) and stage == "all"
+    fit = None
+    if not pending:
+        if not revise:
+            info, fit = far.reconstruct_far(st.open_group(path, mode="r+"), **args, key=key,
+                                            refine_next=two)
+        else:
+            with st.revised_store(path) as side:
+                info, fit = far.reconstruct_far(st.open_group(side, mode="r+"), **args,
+                                                key=key, refine_next=two)
+    if two:
+        with st.revised_store(path, resumable=False) as side:
+            info = far.refine_far(st.open_group(side, mode="r+"), fit=fit, **args, key=key)
+    return info
+
+
+def _on_cluster(path, client: Client | None, scheduler: str | None, run: dict) -> dict:
     from ltmstore.core.cluster import dask_client, is_small
+
+    group = st.open_group(path, mode="r+")
 
     run = {**run, "tile": run["tile"] or 32}
     if client is not None:

@@ -14,6 +14,18 @@ models that interpolate along them), and the surface is fitted only where it low
 model's held-out error by :data:`~ltmstore.stages.surface.MARGIN`; where it is skipped, the
 stage record's ``timings.surface_skipped_s`` says how long its fit would have taken.
 
+``auto`` and ``physical`` run in two recorded stages. Stage 1 (:func:`reconstruct_far`, the
+``reconstruct`` record) is the leave-one-out choice per tile among the classic models: ``ltm``,
+``method_map`` and ``expected_error`` written, the store complete and relightable in about the
+time of ``--method rbf``. Its last write begins the record of stage 2, :data:`REFINE`, which
+stays incomplete (``ltm info``: not complete, ``reconstruct_surface`` not complete) until stage 2
+(:func:`refine_far`: the held-out choice, the surface fit, the tiles written again where the
+choice changed) completes the ``reconstruct`` record again and then its own, on a linked copy of
+the store swapped in only then (:mod:`ltmstore.stages.reconstruct`): a killed stage 2 leaves
+the stage-1 store as it was, and the next ``ltm reconstruct`` of the same parameters runs stage 2
+again from its start (what stage 1 chose is recomputed from the store: the same choice). Both
+stages in one run write the same arrays as one stage did.
+
 Like the RTI world's fitters, the models are fitted to the sRGB-encoded values of the
 photographs (the measure is on 8-bit sRGB images; on the coin this is 3-4 dB better than a fit in
 linear light) and decoded back to linear light.
@@ -41,7 +53,7 @@ import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import zarr
@@ -57,7 +69,7 @@ from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.solve import Geometry, physical
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
 from ltmstore.stages import surface as sf
-from ltmstore.stages.plan import plan_tiles, write_method_map
+from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
 
 FAR_LATTICE = (8, 8)
 FAR_TILE = 64
@@ -66,6 +78,8 @@ CHOICE_PIXELS = 1024  # pixels of a tile whose leave-one-out error chooses its m
 # fraction of the image's mean MSE (see choose_tiles).
 LEAVE_GLOBAL = 1.0
 FAR_METHODS = ("auto", "ptm", "hsh", "rbf", "physical")
+# The record of stage 2, the surface refinement (refine_far); stage 1 is ``reconstruct``.
+REFINE = "reconstruct_surface"  # as core.store.STAGE_VARIABLES names it
 
 
 def far_models(method: str) -> tuple[Model, ...]:
@@ -86,114 +100,244 @@ def train_directions(group) -> np.ndarray:
                             for k in ("pose_r", "pose_s", "pose_z")])
 
 
-def reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, method: str,
-                    tile: int | None, progress: bool, key: dict) -> dict:
-    """Fit, choose per tile and write ``ltm``, ``method_map`` and ``expected_error``.
+def refines(method: str) -> bool:
+    """Whether ``method`` has a second stage, the surface refinement (:data:`REFINE`)."""
+    return method in ("auto", "physical")
 
-    Returns the ``reconstruct`` stage record.
+
+def reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, method: str,
+                    tile: int | None, progress: bool, key: dict,
+                    refine_next: bool = False) -> tuple[dict, FarFit]:
+    """Stage 1: fit, choose per tile and write ``ltm``, ``method_map`` and ``expected_error``.
+
+    The store is then complete and relightable from the classic models. Where ``method`` has a
+    refinement (:func:`refines`), its record :data:`REFINE` is begun (not complete) before the
+    ``reconstruct`` record completes: the store never looks refined, and :func:`refine_far`
+    (next in this run where ``refine_next``: the progress bar says stage 1/2; or in a later
+    run) finishes it.
+
+    Returns the ``reconstruct`` stage record and the fit, which :func:`refine_far` reuses.
     """
     with threadpool_limits(1, user_api="blas"):  # threads over tiles: one BLAS thread each
-        return _reconstruct_far(group, lattice=lattice, method=method, tile=tile,
-                                progress=progress, key=key)
+        fit = FarFit.prepare(group, lattice=lattice, method=method, tile=tile)
+        return fit.classic(group, progress=progress, key=key, staged=refine_next), fit
 
 
-def _reconstruct_far(group: zarr.Group, *, lattice: tuple[int, int] | None, method: str,
-                     tile: int | None, progress: bool, key: dict) -> dict:
-    start = time.perf_counter()
-    models = far_models(method)
-    if method in ("auto", "physical"):  # the surface's kernels load beside the classic work
-        threading.Thread(target=_load_kernels, name="numba-warm-up", daemon=True).start()
-    valid = np.asarray(group["pose_valid"][:], dtype=bool)
-    train = train_directions(group)
-    lat = Lattice.from_plane(DISK, lattice or FAR_LATTICE)
-    cells = disk_to_direction(*Geometry(lattice=lat).positions().T)
-    operators = [loo_operator(m.hat(train)) for m in models]
-    usable = np.array([a is not None for a in operators])
-    loo = np.array([np.zeros((len(train),) * 2) if a is None else a for a in operators])
-    loo32 = loo.astype(np.float32)  # per pixel (expected_error): float32 as the values
-    to_lattice = [m.weights(train, cells).astype(np.float32) for m in models]
-    # linear, kept in float16 as stored: each tile converts and encodes its own pixels
-    frames = np.asarray(group[FRAMES][:])[valid]
-    gain = np.ones(len(frames), dtype=np.float32)  # the frames' exposures (surface.exposures)
-    plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile or FAR_TILE, chunk_bytes=2**20)
-    st.begin_stage(group, "resample")
-    st.complete_stage(group, "resample", {"lattice": lat.to_json(), "light_kind": FAR})
-    st.begin_stage(group, "reconstruct", {"run": key})
-    st.drop_stage_variables(group, "reconstruct")  # an earlier run's, e.g. surface maps
-    for name, values in lat.coords().items():
-        st.write_coord(group, name, values, **coordinate_attrs(FAR)[name])
-    ltm = st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
-                             chunks=plan.chunks, shards=plan.shards,
-                             compressors=checksum.FAST_COMPRESSORS)
-    error = st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
-    unsupported = st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image,
-                                     chunks=plan.tile, dtype=bool, fill_value=False)
-    timings = {"prepare_s": time.perf_counter() - start}
+def refine_far(group: zarr.Group, *, fit: FarFit | None, lattice: tuple[int, int] | None,
+               method: str, tile: int | None, progress: bool, key: dict) -> dict:
+    """Stage 2 (:data:`REFINE`): the surface model and the held-out re-choice of the classic
+    model, on a store whose stage 1 (:func:`reconstruct_far`) is complete.
 
-    def pixels(index: tuple[int, int], choice: bool = False) -> tuple[slice, slice, np.ndarray]:
-        """The tile's rows, columns and sRGB-encoded values ``(lights, pixels)``; for the
-        ``choice``, every k-th pixel only (:data:`CHOICE_PIXELS` of them)."""
+    Writes the surface's maps (and exposures) where it pays, then, where the choice changed,
+    every tile of ``ltm``, ``expected_error`` and ``method_map``; completes the ``reconstruct``
+    record with what the refinement chose and, last, the :data:`REFINE` record. ``fit``: stage
+    1's of this process (None: prepared again from the store, the same choice).
+
+    Returns the completed ``reconstruct`` record.
+    """
+    # the surface's kernels load beside the reading of the frames' colour (not during stage 1:
+    # on a busy 2-core machine they delayed the relightable store by 1-1.5 s, a third of it)
+    threading.Thread(target=_load_kernels, name="numba-warm-up", daemon=True).start()
+    with threadpool_limits(1, user_api="blas"):
+        again = fit is None  # a later run's (stage 1 alone, or a killed stage 2)
+        if again:
+            fit = FarFit.prepare(group, lattice=lattice, method=method, tile=tile)
+        return fit.refine(group, progress=progress, key=key, again=again)
+
+
+def _forget_stage(group: zarr.Group, stage: str) -> None:
+    """Remove the record of ``stage`` (an earlier run's refinement, before stage 1 runs)."""
+    records = st.stages(group)
+    if records.pop(stage, None) is not None:
+        group.attrs[st.STAGES_ATTR] = records
+
+
+@dataclass
+class FarFit:
+    """What both stages of a far-light reconstruction share: the candidate models and their
+    operators, the valid frames (linear luminance, float16 as stored), the tile plan, and
+    once computed, each tile's leave-one-out MSE of every model."""
+
+    method: str
+    models: tuple[Model, ...]
+    valid: np.ndarray
+    train: np.ndarray
+    lat: Lattice
+    cells: np.ndarray
+    loo: np.ndarray
+    usable: np.ndarray
+    to_lattice: list[np.ndarray]
+    frames: np.ndarray
+    plan: TilePlan
+    timings: dict = field(default_factory=dict)
+    mse: np.ndarray | None = None
+
+    @classmethod
+    def prepare(cls, group: zarr.Group, *, lattice: tuple[int, int] | None, method: str,
+                tile: int | None) -> FarFit:
+        """Models, operators and frames of the store's valid lights."""
+        start = time.perf_counter()
+        models = far_models(method)
+        valid = np.asarray(group["pose_valid"][:], dtype=bool)
+        train = train_directions(group)
+        lat = Lattice.from_plane(DISK, lattice or FAR_LATTICE)
+        cells = disk_to_direction(*Geometry(lattice=lat).positions().T)
+        operators = [loo_operator(m.hat(train)) for m in models]
+        usable = np.array([a is not None for a in operators])
+        loo = np.array([np.zeros((len(train),) * 2) if a is None else a for a in operators])
+        to_lattice = [m.weights(train, cells).astype(np.float32) for m in models]
+        # linear, kept in float16 as stored: each tile converts and encodes its own pixels
+        frames = np.asarray(group[FRAMES][:])[valid]
+        plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile or FAR_TILE, chunk_bytes=2**20)
+        return cls(method, models, valid, train, lat, cells, loo, usable, to_lattice, frames,
+                   plan, {"prepare_s": time.perf_counter() - start})
+
+    def pixels(self, index: tuple[int, int], gain: np.ndarray | None = None,
+               choice: bool = False) -> tuple[slice, slice, np.ndarray]:
+        """The tile's rows, columns and sRGB-encoded values ``(lights, pixels)`` (the frames
+        divided by their exposures ``gain``); for the ``choice``, every k-th pixel only
+        (:data:`CHOICE_PIXELS` of them)."""
+        plan = self.plan
         rows, cols = (slice(i * t, min((i + 1) * t, n)) for i, t, n in
                       zip(index, plan.tile, plan.image, strict=True))
-        values = frames[:, rows, cols].reshape(len(frames), -1) / gain[:, None]
+        values = self.frames[:, rows, cols].reshape(len(self.frames), -1)
+        values = values / (np.ones(len(values), np.float32) if gain is None else gain)[:, None]
         if choice:
             values = values[:, :: max(1, values.shape[1] // CHOICE_PIXELS)]
         return rows, cols, linear_to_srgb(values)
 
-    def write(index: tuple[int, int]) -> None:
-        rows, cols, values = pixels(index)
-        shape = (rows.stop - rows.start, cols.stop - cols.start)
-        best = int(chosen[index])
-        if best < len(models):
-            fitted, residual = to_lattice[best] @ values, loo32[best] @ values
-        else:  # the surface model plus its smoothed residual (and classic model)
-            tile_theta = theta[rows, cols].reshape(-1, 3, 6)
-            fitted, residual = at_cells.image_and_residual(tile_theta, values)
-        fitted = np.clip(fitted, 0, None)
-        ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
-        rms = np.sqrt(np.mean(residual**2, axis=0))
-        spread = np.ptp(values, axis=0)
-        error[rows, cols] = (rms / np.where(spread > 0, spread, np.inf)).reshape(shape)
-        unsupported[rows, cols] = False
+    def choose(self, pool: ThreadPoolExecutor) -> np.ndarray:
+        """Each tile's leave-one-out MSE of every model (kept as :attr:`mse`) and its model
+        (:func:`choose_tiles`) on the tile grid."""
+        if self.mse is None:
+            tiles = list(np.ndindex(self.plan.grid))
+            self.mse = np.array(list(pool.map(
+                lambda i: _loo_mse(self.pixels(i, choice=True)[2], self.loo, self.usable),
+                tiles)))
+        return choose_tiles(self.mse, self.models, len(self.train)).reshape(self.plan.grid)
 
-    solve_start = time.perf_counter()
-    tiles = list(np.ndindex(plan.grid))
-    with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
-        mse = np.array(list(pool.map(lambda i: _loo_mse(pixels(i, choice=True)[2], loo, usable),
-                                     tiles)))
-        chosen = choose_tiles(mse, models, len(train)).reshape(plan.grid)
-        timings["fit_s"] = time.perf_counter() - solve_start  # the models are chosen
-        names = [m.name for m in models]
-        if method in ("auto", "physical"):
-            loo_choice = models[pick(mse.mean(axis=0), models, len(train))]
-            classic, surface = _surface(group, valid, train, loo_choice, models, method,
-                                        timings, frames, progress)
+    def write_tiles(self, group: zarr.Group, pool: ThreadPoolExecutor, chosen: np.ndarray, *,
+                    desc: str, progress: bool, surface: tuple | None = None) -> None:
+        """Every tile of ``ltm``, ``expected_error`` and ``unsupported`` from its model in
+        ``chosen`` (an index of :attr:`models`; ``len(models)``: the surface blend, of
+        ``surface = (theta, blend, gain)``)."""
+        lat, loo32 = self.lat, self.loo.astype(np.float32)  # per pixel: float32 as the values
+        ltm, error, unsupported = (group[n] for n in (LTM, EXPECTED_ERROR, UNSUPPORTED))
+        theta, blend, gain = surface if surface is not None else (None, None, None)
+        at_cells = None if blend is None else sf.BlendAt.of(blend, self.train, self.cells)
+
+        def write(index: tuple[int, int]) -> None:
+            rows, cols, values = self.pixels(index, gain)
+            shape = (rows.stop - rows.start, cols.stop - cols.start)
+            best = int(chosen[index])
+            if best < len(self.models):
+                fitted, residual = self.to_lattice[best] @ values, loo32[best] @ values
+            else:  # the surface model plus its smoothed residual (and classic model)
+                tile_theta = theta[rows, cols].reshape(-1, 3, 6)
+                fitted, residual = at_cells.image_and_residual(tile_theta, values)
+            fitted = np.clip(fitted, 0, None)
+            ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
+            rms = np.sqrt(np.mean(residual**2, axis=0))
+            spread = np.ptp(values, axis=0)
+            error[rows, cols] = (rms / np.where(spread > 0, spread, np.inf)).reshape(shape)
+            unsupported[rows, cols] = False
+
+        list(tqdm(pool.map(write, list(np.ndindex(self.plan.grid))), total=self.plan.n_tiles,
+                  desc=desc, disable=not progress))
+
+    def classic(self, group: zarr.Group, *, progress: bool, key: dict, staged: bool) -> dict:
+        """Stage 1 (:func:`reconstruct_far`); ``staged``: the refinement follows in this run
+        (the progress bar names the stage)."""
+        plan, lat, timings = self.plan, self.lat, dict(self.timings)
+        st.begin_stage(group, "resample")
+        st.complete_stage(group, "resample", {"lattice": lat.to_json(), "light_kind": FAR})
+        st.begin_stage(group, "reconstruct", {"run": key})
+        _forget_stage(group, REFINE)  # an earlier run's
+        st.drop_stage_variables(group, "reconstruct")  # an earlier run's, e.g. surface maps
+        for name, values in lat.coords().items():
+            st.write_coord(group, name, values, **coordinate_attrs(FAR)[name])
+        st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
+                           chunks=plan.chunks, shards=plan.shards,
+                           compressors=checksum.FAST_COMPRESSORS)
+        st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
+        st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image, chunks=plan.tile,
+                           dtype=bool, fill_value=False)
+        solve_start = time.perf_counter()
+        two = refines(self.method)
+        with _pool() as pool:
+            chosen = self.choose(pool)
+            timings["fit_s"] = time.perf_counter() - solve_start  # the models are chosen
+            desc = (f"reconstruct {'1/2 ' if staged else ''}classic: tiles" if two
+                    else "reconstruct tiles")
+            self.write_tiles(group, pool, chosen, desc=desc, progress=progress)
+        timings["solve_s"] = timings["classic_s"] = time.perf_counter() - solve_start
+        names = [m.name for m in self.models]
+        write_method_map(group, plan, chosen, names, "leave-one-light-out error")
+        timings["resample_s"] = 0.0
+        info = {"lattice": lat.to_json(), "light_kind": FAR, "method": self.method,
+                "params": {}, "auto": self.method == "auto", "color": False, "run": key,
+                "K": int(self.valid.sum()), "M": lat.size,
+                "sampling_ratio": float(self.valid.sum()) / lat.size, "path_density": None,
+                **_chosen(chosen, names), "plan": asdict(plan), "tiles_total": plan.n_tiles,
+                "tiles_solved": plan.n_tiles, "tiles_resumed": 0, "resumed": False,
+                "timings": timings, "exposure_fitted": False, "surface_skipped": False,
+                "refinement": "pending" if two else "none",
+                "seconds_per_pixel": timings["solve_s"] / int(np.prod(plan.image))}
+        if two:  # begun before stage 1 completes: the store never looks refined
+            st.begin_stage(group, REFINE, {"run": key})
+        st.complete_stage(group, "reconstruct", info)
+        return info
+
+    def refine(self, group: zarr.Group, *, progress: bool, key: dict, again: bool) -> dict:
+        """Stage 2 (:func:`refine_far`); ``again``: in another run than stage 1 (its fit
+        prepared again, in ``refine_prepare_s``)."""
+        start = time.perf_counter()
+        record = st.stages(group)["reconstruct"]
+        st.begin_stage(group, REFINE, {"run": key})
+        timings = {"refine_prepare_s": self.timings["prepare_s"]} if again else {}
+        models, n_lights = self.models, len(self.train)
+        with _pool() as pool:
+            first = self.choose(pool)
+            loo_choice = models[pick(self.mse.mean(axis=0), models, n_lights)]
+            classic, surface = _surface(group, self.valid, self.train, loo_choice, models,
+                                        self.method, timings, self.frames, progress)
+            chosen = first
             if classic != loo_choice:  # held-out lights prefer another classic model
-                chosen = choose_tiles(mse, models, len(train),
-                                      common=models.index(classic)).reshape(plan.grid)
+                chosen = choose_tiles(self.mse, models, n_lights,
+                                      common=models.index(classic)).reshape(self.plan.grid)
+            names = [m.name for m in models]
             if surface is not None:
-                theta, blend, gain[:] = surface
-                at_cells = sf.BlendAt.of(blend, train, cells)  # once for every tile
-                chosen[...] = len(names)
-                names.append(blend.name)
-        list(tqdm(pool.map(write, tiles), total=plan.n_tiles, desc="reconstruct tiles",
-                  disable=not progress))
-    timings["solve_s"] = time.perf_counter() - solve_start
-    write_method_map(group, plan, chosen, names, "leave-one-light-out error")
+                chosen = np.full_like(first, len(names))
+                names.append(surface[1].name)
+            if surface is not None or not np.array_equal(chosen, first):
+                self.write_tiles(group, pool, chosen, desc="reconstruct 2/2 surface: tiles",
+                                 progress=progress, surface=surface)
+                write_method_map(group, self.plan, chosen, names,
+                                 "leave-one-light-out error")
+        timings["refine_s"] = time.perf_counter() - start
+        gain = np.ones(1) if surface is None else surface[2]
+        info = {**record, **_chosen(chosen, names), "refinement": "done",
+                "exposure_fitted": bool((gain != 1).any()),
+                "surface_skipped": "surface_skipped_s" in timings,
+                "timings": {**record["timings"], **timings,
+                            "solve_s": record["timings"]["solve_s"] + timings["refine_s"]}}
+        info["seconds_per_pixel"] = info["timings"]["solve_s"] / int(np.prod(self.plan.image))
+        # the reconstruct record again, with what it wrote (on a copy swapped in when complete)
+        st.complete_stage(group, "reconstruct", info)
+        st.complete_stage(group, REFINE, {"run": key, "timings": timings,
+                                          "separate_run": again})  # last
+        return st.stages(group)["reconstruct"]
+
+
+def _chosen(chosen: np.ndarray, names: list[str]) -> dict:
+    """``chosen_per_tile`` and ``methods_per_tile``: how many tiles took each model."""
     counts = {names[i]: int(c) for i, c in zip(*np.unique(chosen, return_counts=True),
                                                 strict=True)}
-    timings["resample_s"] = 0.0
-    info = {"lattice": lat.to_json(), "light_kind": FAR, "method": method, "params": {},
-            "auto": method == "auto", "color": False, "run": key, "K": int(valid.sum()),
-            "M": lat.size, "sampling_ratio": float(valid.sum()) / lat.size,
-            "path_density": None, "chosen_per_tile": counts,
-            "methods_per_tile": counts, "plan": asdict(plan),
-            "tiles_total": plan.n_tiles, "tiles_solved": plan.n_tiles, "tiles_resumed": 0,
-            "resumed": False, "timings": timings, "exposure_fitted": bool((gain != 1).any()),
-            "surface_skipped": "surface_skipped_s" in timings,
-            "seconds_per_pixel": timings["solve_s"] / int(np.prod(plan.image))}
-    st.complete_stage(group, "reconstruct", info)
-    return info
+    return {"chosen_per_tile": counts, "methods_per_tile": dict(counts)}
+
+
+def _pool() -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1))
 
 
 def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: Model,
@@ -223,9 +367,13 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     chosen = sf.sample_rgb(group, valid, luma, sample)  # luma: the valid frames, already read
     exposure, weight, lobe = False, 1.0, "ggx"
     if method == "auto":
-        lobe, timings["surface_lobe_loo_mse"] = sf.choose_lobe(chosen, train)
-        timings["surface_lobe"] = lobe
-        scores = sf.cross_validated(chosen, train, classic, classics=models, lobe=lobe)
+        with tqdm(total=2, desc="reconstruct 2/2 surface: choice", unit="step",
+                  disable=not progress) as bar:  # the lobe, then the held-out scores
+            lobe, timings["surface_lobe_loo_mse"] = sf.choose_lobe(chosen, train)
+            bar.update()
+            timings["surface_lobe"] = lobe
+            scores = sf.cross_validated(chosen, train, classic, classics=models, lobe=lobe)
+            bar.update()
         timings["surface_choice_s"] = time.perf_counter() - start
         best = sf.best_classic(scores, classic, models, len(train))
         key = None if best == classic else best.name
@@ -261,7 +409,8 @@ def _fit_bands(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, train: np
     to the valid frames divided by their exposures ``gain``."""
     theta = np.empty((*luma.shape[1:], 3, 6))
     bands = sf.row_bands(luma.shape)
-    for rows in tqdm(bands, desc="surface fit", unit="band", disable=not progress):
+    for rows in tqdm(bands, desc="reconstruct 2/2 surface: fit", unit="band",
+                     disable=not progress):
         rgb = sf.frames_rgb(group, valid, luma, rows)
         rgb /= gain[:, None, None, None]
         theta[rows] = sf.fit_image(rgb, train, lobe, workers=min(2, os.cpu_count() or 1))
@@ -271,7 +420,7 @@ def _fit_bands(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, train: np
 
 def _load_kernels() -> None:
     """Numba and the surface fit's compiled kernels (about 1-1.5 s of one core, mostly holding
-    the GIL), loaded while the main thread reads the frames and fits the classic models."""
+    the GIL), loaded while stage 2 copies the store and reads the frames' colour."""
     from ltmstore.solve.physical_far import warm_up
 
     warm_up()
