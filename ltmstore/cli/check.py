@@ -51,9 +51,11 @@ def _recover(store: str) -> None:
 
 
 def _verify(store: str) -> dict:
-    from ltmstore.core.store import verify_store
+    from ltmstore.core.store import open_group, refinement_pending, verify_store
 
-    return verify_store(store)
+    report = verify_store(store)
+    report["refinement_pending"] = refinement_pending(dict(open_group(store).attrs))
+    return report
 
 
 def _report(store: str, report: dict) -> None:
@@ -72,6 +74,10 @@ def _report(store: str, report: dict) -> None:
     if report["damaged"]:
         raise LtmError(f"store {store!r} is damaged: {len(report['damaged'])} part(s) above")
     print(f"{store}: {report['parts']} parts verified, no damage")
+    if report.get("refinement_pending"):
+        from ltmstore.core.store import refinement_note
+
+        print(refinement_note(store), file=sys.stderr)
 
 
 def damaged_read(store: str | None, exc: ValueError) -> str | None:

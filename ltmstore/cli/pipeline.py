@@ -448,7 +448,7 @@ def cmd_relight(a: argparse.Namespace) -> None:
     import numpy as np
 
     from ltmstore.core.imagefile import write_image
-    from ltmstore.core.store import open_store
+    from ltmstore.core.store import open_store, refinement_note, refinement_pending
     from ltmstore.core.transfer import check_depth, check_exposure
     from ltmstore.stages.relight import LightClampWarning, encoded_images, relight
 
@@ -467,6 +467,8 @@ def cmd_relight(a: argparse.Namespace) -> None:
             images = images.sum("light").expand_dims("light")
     for w in caught:
         print(f"ltm: warning: {w.message}", file=sys.stderr)
+    if refinement_pending(ds.attrs):
+        print(refinement_note(a.store), file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
     for out, image in zip(outputs, encoded_images(images, transfer, exposure=a.exposure,
                                                   ev=a.ev, depth=depth), strict=True):

@@ -13,6 +13,7 @@ import datetime as _dt
 import json
 import os
 import re
+import shlex
 import shutil
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -39,6 +40,7 @@ if TYPE_CHECKING:  # xarray loads in open_store: writing a store does not need i
 __all__ = ["swap_in"]  # re-exported: the archive swaps its stores in too
 
 STAGES_ATTR = "stages"
+REFINEMENT = "reconstruct_surface"  # a far-light store's second reconstruct stage
 # Which variables each stage writes (to hide the output of stages that did not complete).
 STAGE_VARIABLES = {
     "ingest": ("frames", "frame_chroma", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q",
@@ -54,8 +56,8 @@ STAGE_VARIABLES = {
                     *(f"{n}{part}" for n in ("ltm", "ltm_cb", "ltm_cr")
                       for part in (factored.WEIGHTS, factored.BASIS, factored.RANKS,
                                    factored.TILE_WEIGHTS, factored.TILE_BASIS))),
-    # a far-light store's surface refinement (ltmstore.stages.reconstruct_far.REFINE), after
-    # the classic fit of "reconstruct": the arrays only it writes
+    # a far-light store's surface refinement (REFINEMENT), after the classic fit of
+    # "reconstruct": the arrays only it writes
     "reconstruct_surface": ("normal", "albedo", "specular", "roughness", "ambient", "exposure"),
 }
 # The arrays each stage (re)writes, besides coordinates (:func:`complete_stage` records what it
@@ -403,6 +405,20 @@ def check_writable(path: str | os.PathLike) -> None:
 def stages(group: zarr.Group) -> dict:
     """Provenance of every stage recorded in the store."""
     return dict(group.attrs.get(STAGES_ATTR, {}))
+
+
+def refinement_pending(attrs: dict) -> bool:
+    """Whether a store's attributes ``attrs`` record a far-light classic fit whose surface
+    refinement (:data:`REFINEMENT`) was begun and not completed: relightable, not refined."""
+    entry = attrs.get(STAGES_ATTR, {}).get(REFINEMENT)
+    return isinstance(entry, dict) and not entry.get("complete")
+
+
+def refinement_note(store: str | os.PathLike) -> str:
+    """The note a reader of a store whose refinement is pending prints."""
+    return (f"ltm: note: store {os.fspath(store)!r} holds its classic fit only: its surface "
+            f"refinement is pending (`ltm reconstruct {shlex.quote(os.fspath(store))}` "
+            "finishes it)")
 
 
 def drop_stage_variables(group: zarr.Group, *names: str) -> None:

@@ -79,7 +79,7 @@ CHOICE_PIXELS = 1024  # pixels of a tile whose leave-one-out error chooses its m
 LEAVE_GLOBAL = 1.0
 FAR_METHODS = ("auto", "ptm", "hsh", "rbf", "physical")
 # The record of stage 2, the surface refinement (refine_far); stage 1 is ``reconstruct``.
-REFINE = "reconstruct_surface"  # as core.store.STAGE_VARIABLES names it
+REFINE = st.REFINEMENT
 
 
 def far_models(method: str) -> tuple[Model, ...]:

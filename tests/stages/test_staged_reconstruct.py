@@ -139,3 +139,21 @@ def test_a_kill_during_the_refinement_leaves_the_classic_store_and_a_rerun_finis
     assert stages(zarr.open_group(store, mode="r"))[REFINE]["separate_run"]
     assert store_summary(store)["complete"]
     assert_same_arrays(store, default_run)
+
+
+def test_check_and_relight_say_the_refinement_is_pending(store, tmp_path):
+    """`ltm check` passes a classic-only store and `ltm relight` relights it, each with one note
+    saying its surface refinement is pending and how to finish it; none once it is done."""
+    def notes(*argv) -> list[str]:
+        run = subprocess.run([BIN / "ltm", *map(str, argv)], capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+        return [line for line in run.stderr.splitlines() if line.startswith("ltm: note:")]
+
+    reconstruct(store, stage="classic", progress=False)
+    relit = ("relight", store, "--direction", "0,0,1", "-o", tmp_path / "a.png", "--overwrite")
+    for argv in (("check", store), relit):
+        assert notes(*argv) == [f"ltm: note: store {str(store)!r} holds its classic fit only: "
+                                f"its surface refinement is pending (`ltm reconstruct {store}` "
+                                "finishes it)"]
+    reconstruct(store, progress=False)
+    assert notes("check", store) == notes(*relit) == []
