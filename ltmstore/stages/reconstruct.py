@@ -596,17 +596,13 @@ def _warn_if_it_overflows(estimate: dict) -> None:
 def _refinement_pending(group: zarr.Group, key: dict) -> bool:
     """Whether the store's far-light refinement was begun and not completed by a run of the
     parameters ``key`` (stage 1 alone, or a run killed during stage 2)."""
-    from ltmstore.stages.reconstruct_far import REFINE
-
-    entry = st.stages(group).get(REFINE) or {}
+    entry = st.stages(group).get(st.REFINEMENT) or {}
     return bool(entry) and not entry.get("complete") and entry.get("run") == key
 
 
 def _pending_note(group: zarr.Group, key: dict) -> str:
     """How to finish a far-light store's pending refinement (empty where none is)."""
-    from ltmstore.stages.reconstruct_far import REFINE
-
-    entry = st.stages(group).get(REFINE) or {}
+    entry = st.stages(group).get(st.REFINEMENT) or {}
     if not entry or entry.get("complete"):
         return ""
     run = entry.get("run") or {}
