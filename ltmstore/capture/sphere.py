@@ -437,7 +437,7 @@ def combine(per_sphere: np.ndarray, spheres: list[Sphere], size: tuple[int, int]
 
 
 def _read(path: Path) -> np.ndarray:
-    from ltmstore.capture.lp import decode_image
+    from ltmstore.capture.photographs import decode_image
 
     try:
         data = Path(path).read_bytes()

@@ -29,7 +29,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".g
 TIFF_SUFFIXES = (".tif", ".tiff")
 DEPTH_SUFFIXES = {8: IMAGE_SUFFIXES, 16: (".png", *TIFF_SUFFIXES), FLOAT: TIFF_SUFFIXES}
 DEPTH_NAMES = {8: "8-bit", 16: "16-bit", FLOAT: "float32"}
-# PNG chunks naming the transfer (written after IHDR; read back by ltmstore.capture.lp)
+# PNG chunks naming the transfer (written after IHDR; read back by ltmstore.capture.photographs)
 PNG_GAMMA = {"srgb": 45455, "linear": 100000}  # gAMA: the encoding exponent times 100000
 
 
@@ -124,7 +124,7 @@ def _png16_bytes(image: np.ndarray) -> bytes:
 def png_with_transfer(data: bytes, transfer: str) -> bytes:
     """The PNG ``data`` with chunks naming ``transfer`` inserted after its header: ``sRGB``
     (perceptual) and ``gAMA`` 0.45455 for sRGB, ``gAMA`` 1.0 for linear (PNG's own marks,
-    read by :func:`ltmstore.capture.lp.image_transfer`)."""
+    read by :func:`ltmstore.capture.photographs.image_transfer`)."""
     if transfer not in TRANSFERS:
         raise LtmError(f"transfer {transfer!r} is unknown; expected one of {', '.join(TRANSFERS)}")
     end = 8 + 8 + 13 + 4  # signature, IHDR length + type, its 13 bytes, CRC

@@ -31,14 +31,8 @@ from pathlib import Path
 import numpy as np
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from ltmstore.capture.lp import (
-    LpWarning,
-    decode_image,
-    hidden_lights,
-    image_orientation,
-    read_lp,
-    warn_orientations,
-)
+from ltmstore.capture.lp import LpWarning, hidden_lights, read_lp
+from ltmstore.capture.photographs import decode_image, image_orientation, warn_orientations
 from ltmstore.core.dims import LUMA
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import encode, srgb_to_linear

@@ -9,9 +9,9 @@ out), and the acquisition record says ``light_kind: far`` with the units of ``r,
 Photographs are 8-bit, 16-bit (PNG, TIFF, raw photographs developed linear by LibRaw) or
 floating point (TIFF), all of one depth, each kept at its precision (the frames are linear
 light). Their transfer (sRGB or linear) is declared, or read from the files
-(:func:`ltmstore.capture.lp.image_transfer`: a float or raw image is linear; a PNG's ``sRGB``
-or ``gAMA`` chunk, an ICC profile's tone curve), else sRGB; a capture whose files say two
-different things is refused. The store records the transfer, where it came from and the
+(:func:`ltmstore.capture.photographs.image_transfer`: a float or raw image is linear; a PNG's
+``sRGB`` or ``gAMA`` chunk, an ICC profile's tone curve), else sRGB; a capture whose files say
+two different things is refused. The store records the transfer, where it came from and the
 depth (``acquisition.transfer``, ``transfer_source``, ``depth``: ``8-bit``, ``16-bit`` or
 ``float``).
 """
@@ -31,13 +31,12 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ltmstore.capture.acquisition import sha256_file
-from ltmstore.capture.lp import (
+from ltmstore.capture.lp import hidden_lights, read_lp
+from ltmstore.capture.photographs import (
     DEPTH_NAMES,
     decode_image,
-    hidden_lights,
     image_orientation,
     image_transfer,
-    read_lp,
     warn_orientations,
 )
 from ltmstore.core.dims import OBSERVATION_DTYPE
@@ -104,7 +103,7 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
     transfer : {"srgb", "linear"}, optional
         How the photographs' values encode light, declared (then the files' marks are not
         read); default: what the first photograph says
-        (:func:`ltmstore.capture.lp.image_transfer`), else sRGB.
+        (:func:`ltmstore.capture.photographs.image_transfer`), else sRGB.
         Every photograph must have the first one's depth and, when not declared, say no other
         transfer. A floating-point photograph declared sRGB is decoded by sRGB's curve.
     progress : bool, default True
@@ -208,7 +207,7 @@ class Transfer:
     def choose(cls, declared: str | None, name: str, rgb: np.ndarray,
                said: tuple[str | None, str]) -> Transfer:
         """``declared``, or what the first photograph ``name`` (decoded: ``rgb``) says
-        (``said``: :func:`~ltmstore.capture.lp.image_transfer`), else sRGB."""
+        (``said``: :func:`~ltmstore.capture.photographs.image_transfer`), else sRGB."""
         says, source = said
         if declared is not None:
             return cls(declared, "declared", True, name, rgb.dtype)

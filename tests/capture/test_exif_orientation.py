@@ -16,7 +16,7 @@ import pytest
 from ingest_helpers import write_capture
 from PIL import Image
 
-from ltmstore.capture.lp import OrientationWarning, decode_image, image_orientation
+from ltmstore.capture.photographs import OrientationWarning, decode_image, image_orientation
 from ltmstore.cli import main
 from ltmstore.core.store import open_store
 from ltmstore.judge.photos import load_photos

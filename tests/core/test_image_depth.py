@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image, ImageCms
 
-from ltmstore.capture.lp import decode_image, image_transfer
+from ltmstore.capture.photographs import decode_image, image_transfer
 from ltmstore.core.errors import LtmError
 from ltmstore.core.imagefile import check_image_path, write_image
 from ltmstore.core.transfer import (

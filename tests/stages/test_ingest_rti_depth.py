@@ -270,7 +270,7 @@ def test_a_dng_capture_is_developed_linear_at_16_bits(tmp_path):
 
 
 def test_a_damaged_raw_photograph_is_one_line(tmp_path):
-    from ltmstore.capture.lp import decode_image
+    from ltmstore.capture.photographs import decode_image
 
     with pytest.raises(LtmError, match=r"image 'x.dng' cannot be decoded as a raw photograph "
                                        r"\(LibRaw\): "):
