@@ -91,7 +91,7 @@ FOCAL_PX = 1000.0  # at 1280 px wide: a 65 degree horizontal field of view
 LED_OFFSET = (0.012, 0.0, 0.0)  # metres, camera axes
 BOARD_PAPER = "A0"  # 1189 x 841 mm: the camera sees the board everywhere over the 40 cm plane
 BOARD_SQUARE_MM = 30.0
-TEXTURE_PX_PER_M = 5000.0  # board texture resolution (0.2 mm per pixel)
+TEXTURE_PX_PER_M = 5000.0  # board texture resolution (0.2 mm per pixel; see board_px_per_m)
 OPTICS_BLUR_PX = 0.8  # Gaussian sigma of the lens blur, pixels at 1280 wide
 NOISE_DN = 2.0  # read noise, 8-bit code values
 SHOT_DN = 0.02  # shot noise variance per code value
@@ -174,8 +174,8 @@ class BoardView:
         w, h = camera.size
         u, v = np.meshgrid(np.arange(w) - w / 2, np.arange(h) - h / 2)
         self.falloff = ((1 + (u * u + v * v) / camera.focal_px**2) ** -2).astype(np.float32)
-        self.scale = np.array([[1 / TEXTURE_PX_PER_M, 0, 0.5 / TEXTURE_PX_PER_M],
-                               [0, 1 / TEXTURE_PX_PER_M, 0.5 / TEXTURE_PX_PER_M], [0, 0, 1]])
+        ppm = board_px_per_m(spec)
+        self.scale = np.array([[1 / ppm, 0, 0.5 / ppm], [0, 1 / ppm, 0.5 / ppm], [0, 0, 1]])
 
     def homography(self, centre: np.ndarray, r_wc: np.ndarray) -> np.ndarray:
         r_cb, t = camera_extrinsics(self.spec, centre, r_wc)
@@ -250,20 +250,44 @@ def calibration_frames(view: PhoneView, seed: int, n: int = CALIBRATION_VIEWS, *
         yield view.still(centre, r_wc, rng)
 
 
+def board_px_per_m(spec: BoardSpec) -> float:
+    """The board texture's resolution: the nearest to :data:`TEXTURE_PX_PER_M` with a whole
+    number of texels per square.
+
+    OpenCV draws a ChArUco board's squares on whole pixels, so at a fractional number of texels
+    per square (camera B's 46.1 mm squares at 5000 px/m: 230.5) each corner is rounded by up to
+    half a texel (0.1 mm) away from the geometry the board's JSON reports; at a whole number the
+    drawn board is that geometry exactly (its physical size unchanged).
+
+    Parameters
+    ----------
+    spec : BoardSpec
+        The board.
+
+    Returns
+    -------
+    float
+        Texels per metre (exactly :data:`TEXTURE_PX_PER_M` where the squares already hold a
+        whole number, e.g. 30 mm squares).
+    """
+    return round(spec.square_length * TEXTURE_PX_PER_M) / spec.square_length
+
+
 def board_texture(spec: BoardSpec, albedo: np.ndarray | None = None,
                   object_width: float = 0.2) -> PlaneTexture:
     """The board (the painting pasted at its centre when ``albedo`` is given), centred on the
-    plane origin, evenly lit."""
-    tex = board_image(spec, TEXTURE_PX_PER_M).astype(np.float32) / 255
+    plane origin, evenly lit, at :func:`board_px_per_m` (its corners where ``spec`` puts
+    them)."""
+    ppm = board_px_per_m(spec)
+    tex = board_image(spec, ppm).astype(np.float32) / 255
     if albedo is not None:
-        side = round(object_width * TEXTURE_PX_PER_M)
+        side = round(object_width * ppm)
         patch = cv2.resize(np.asarray(albedo, np.float32), (side, side),
                            interpolation=cv2.INTER_LINEAR)
         y0, x0 = (tex.shape[0] - side) // 2, (tex.shape[1] - side) // 2
         tex[y0:y0 + side, x0:x0 + side] = np.clip(patch, 0, 1)
     w, h = spec.size
-    return PlaneTexture(cv2.GaussianBlur(tex, (0, 0), 0.7), None, -w / 2, h / 2,
-                        TEXTURE_PX_PER_M, 0.45)
+    return PlaneTexture(cv2.GaussianBlur(tex, (0, 0), 0.7), None, -w / 2, h / 2, ppm, 0.45)
 
 
 def simulate_raw(out: str | os.PathLike, *, scene: str = "canvas",
