@@ -38,6 +38,10 @@ DEFAULT_QUALITY = 95
 DEFAULT_RESOLUTION = 16
 DEFAULT_PLANES = 27
 
+# ltmstore.share.tiles.LAYOUTS and TILE_SIZE
+LAYOUTS = ("image", "deepzoom")
+TILE_SIZE = 256
+
 # the names above, each with the library module and name it copies (for the test)
 ORIGINALS = {
     "SCENES": ("ltmstore.synthetic.scenes", "SCENES"),
@@ -54,4 +58,6 @@ ORIGINALS = {
     "DEFAULT_QUALITY": ("ltmstore.share.relight_web", "DEFAULT_QUALITY"),
     "DEFAULT_RESOLUTION": ("ltmstore.share.pca_web", "DEFAULT_RESOLUTION"),
     "DEFAULT_PLANES": ("ltmstore.share.pca_web", "DEFAULT_PLANES"),
+    "LAYOUTS": ("ltmstore.share.tiles", "LAYOUTS"),
+    "TILE_SIZE": ("ltmstore.share.tiles", "TILE_SIZE"),
 }

@@ -12,6 +12,8 @@ from ltmstore.cli.names import (
     DEFAULT_RESOLUTION,
     FORMATS,
     HSH_ORDERS,
+    LAYOUTS,
+    TILE_SIZE,
     WEB_BASES,
 )
 
@@ -29,7 +31,9 @@ def register(sub) -> None:
                        "display sRGB at the capture's exposure, as ltm relight writes them. "
                        "Prints what the format loses: its PSNR at the capture's held-out "
                        "lights (ingest-rti --holdout-lights) against the photographs and "
-                       "ltm relight, else against ltm relight at the capture's lights.")
+                       "ltm relight, else against ltm relight at the capture's lights. With "
+                       "--layout deepzoom the web format's planes are DeepZoom pyramids "
+                       "(plane_<j>.dzi, plane_<j>_files/) that OpenLIME reads tile by tile.")
     p.add_argument("store", help="reconstructed store (ltm reconstruct)")
     p.add_argument("output", help="OUT.ptm, OUT.rti, or a folder for --format relight")
     p.add_argument("--format", dest="fmt", required=True, choices=FORMATS,
@@ -51,6 +55,13 @@ def register(sub) -> None:
                    "(default: %(default)s)")
     p.add_argument("--quality", type=int, default=DEFAULT_QUALITY,
                    help="relight: JPEG quality of the planes (default: %(default)s)")
+    p.add_argument("--layout", default=LAYOUTS[0], choices=LAYOUTS,
+                   help="relight: the planes as whole JPEGs (image), or as DeepZoom pyramids "
+                   "(deepzoom: plane_<j>.dzi and plane_<j>_files/, tiles a viewer reads as "
+                   "it zooms; OpenLIME's layout 'deepzoom') (default: %(default)s)")
+    p.add_argument("--tile-size", type=int, default=TILE_SIZE,
+                   help="relight --layout deepzoom: tile side in pixels (default: "
+                   "%(default)s)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing OUTPUT")
     p.set_defaults(func=cmd_export)
     register_maps(sub)
@@ -62,10 +73,13 @@ def cmd_export(a: argparse.Namespace) -> None:
 
     r = export(a.store, a.output, fmt=a.fmt, order=a.order, basis=a.basis, color=a.color,
                quality=a.quality, overwrite=a.overwrite, resolution=a.resolution,
-               planes=a.planes)
+               planes=a.planes, layout=a.layout, tile_size=a.tile_size)
     print(f"wrote {r['path']} ({r['format']}, {r['basis']} basis, {r['terms']} terms, "
           f"{r['width']}x{r['height']} px, from {r['directions']} light directions; "
           f"white = {r['white']:.4g} linear)")
+    if r["layout"] != "image":
+        print(f"{r['layout']} layout: {r['levels']} levels of {r['tile_size']} px tiles, "
+              f"{r['tiles']} tiles")
     if "fidelity" in r:
         print(r["fidelity"]["text"])
 

@@ -17,7 +17,7 @@ import os
 import numpy as np
 
 from ltmstore.core.errors import LtmError
-from ltmstore.share import bases, fidelity, fit, hsh_rti, pca_web, ptm, relight_web
+from ltmstore.share import bases, fidelity, fit, hsh_rti, pca_web, ptm, relight_web, tiles
 from ltmstore.share.atomic import atomic_output, check_output
 from ltmstore.share.directions import light_samples
 
@@ -48,7 +48,9 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
            basis: str = "bilinear", color: str = "rgb",
            quality: int = relight_web.DEFAULT_QUALITY, overwrite: bool = False,
            resolution: int = pca_web.DEFAULT_RESOLUTION,
-           planes: int = pca_web.DEFAULT_PLANES, score: bool = True) -> dict:
+           planes: int = pca_web.DEFAULT_PLANES, score: bool = True,
+           layout: str = "image", tile_size: int = tiles.TILE_SIZE,
+           overlap: int = tiles.OVERLAP) -> dict:
     """Export a reconstructed store to an RTI format.
 
     Parameters
@@ -77,24 +79,35 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
     score : bool
         Also evaluate the written coefficients at the capture's held-out lights (or its own
         lights) against ``ltm relight`` and the photographs (:mod:`ltmstore.share.fidelity`).
+    layout : {"image", "deepzoom"}
+        The web format's planes: one JPEG each, or a DeepZoom pyramid each
+        (:mod:`ltmstore.share.tiles`; ``fmt="relight"`` only).
+    tile_size, overlap : int
+        ``deepzoom``: tile side and overlap in pixels.
 
     Returns
     -------
     dict
         What was written: path, format, basis terms, size, number of light directions, the
         exposure ``white`` (the linear value shown as 1.0: the capture's, 1.0, as ``ltm
-        relight`` writes it) and, with ``score``, ``fidelity``
-        (:func:`ltmstore.share.fidelity.summary`).
+        relight`` writes it), ``layout`` (tiled: also ``levels``, ``tiles``, ``tile_size``,
+        ``overlap``) and, with ``score``, ``fidelity`` (:func:`ltmstore.share.fidelity.summary`).
     """
     _check(fmt, order, basis, color, quality)
+    tiles.check(layout, fmt, tile_size, overlap)
     if fmt == "relight" and basis == "bilinear":
         pca_web.check(resolution, planes)
     check_output(out, overwrite, inputs=(store,))
     samples = light_samples(store)  # refuses a store export cannot read
+    if layout != "image":
+        tiles.check_size(samples.shape[1], samples.shape[0], tile_size)
     check = fidelity.checkpoints(store) if score else None
+    pyramid = {"layout": layout, "tile_size": tile_size, "overlap": overlap, "quality": quality}
     if fmt == "relight" and basis == "bilinear":
-        return _export_bilinear(store, out, quality, overwrite, resolution, planes, check)
+        return _export_bilinear(store, out, quality, overwrite, resolution, planes, check,
+                                pyramid)
     white = CAPTURE_WHITE
+    tiled = {"layout": layout}
     design = _design(fmt, basis, order, samples.directions)
     with atomic_output(out, overwrite=overwrite, folder=fmt == "relight",
                        inputs=(store,)) as tmp:
@@ -110,11 +123,12 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
                 hsh_rti.write(tmp, coef)
             else:
                 relight_web.write(tmp, coef, basis, quality=quality)
+                tiled = tiles.tile_planes(tmp, **pyramid)
     report = {"path": os.fspath(out), "format": fmt,
               "basis": basis if fmt == "relight" else fmt, "color": color,
               "terms": int(design.shape[1]), "width": samples.shape[1],
               "height": samples.shape[0], "directions": int(len(samples.directions)),
-              "white": white}
+              "white": white, **tiled}
     if check is not None:
         weights = _design(fmt, basis, order, check.directions)
         images = fidelity.display_images(np.einsum("lb,yxbc->lyxc", weights, coef))
@@ -130,15 +144,17 @@ def _label(fmt: str, basis: str, order: int) -> str:
 
 
 def _export_bilinear(store, out, quality: int, overwrite: bool, resolution: int,
-                     planes: int, check: fidelity.Checkpoints | None) -> dict:
-    """The web format carrying the store's relighting (:mod:`ltmstore.share.pca_web`)."""
+                     planes: int, check: fidelity.Checkpoints | None, pyramid: dict) -> dict:
+    """The web format carrying the store's relighting (:mod:`ltmstore.share.pca_web`),
+    its planes laid out as ``pyramid`` says (:func:`ltmstore.share.tiles.tile_planes`)."""
     with atomic_output(out, overwrite=overwrite, folder=True, inputs=(store,)) as tmp:
         info = pca_web.write(store, tmp, resolution=resolution, planes=planes, quality=quality,
                              directions=None if check is None else check.directions)
+        tiled = tiles.tile_planes(tmp, **pyramid)
     report = {"path": os.fspath(out), "format": "relight", "basis": "bilinear",
               "color": "rgb", "terms": planes, "width": info["width"],
               "height": info["height"], "directions": info["directions"],
-              "white": CAPTURE_WHITE}
+              "white": CAPTURE_WHITE, **tiled}
     if check is not None:
         report["fidelity"] = fidelity.summary(
             "relight bilinear", fidelity.display_images(info["images"]), check)
