@@ -53,8 +53,9 @@ def _recover(store: str) -> None:
 def _verify(store: str) -> dict:
     from ltmstore.core.store import open_group, refinement_pending, verify_store
 
-    report = verify_store(store)
-    report["refinement_pending"] = refinement_pending(dict(open_group(store).attrs))
+    report = verify_store(store)  # a damaged store is reported as such, nothing more
+    report["refinement_pending"] = (not report["damaged"]
+                                    and refinement_pending(dict(open_group(store).attrs)))
     return report
 
 
