@@ -55,7 +55,9 @@ BENCHMARKS = {
     "ingest_memory": Benchmark("ingest_memory.py", "ltm ingest-rti's peak memory and time on "
                                "classic captures of 1-24 MP, beside older code"),
     "relight_memory": Benchmark("relight_memory.py", "ltm relight's peak memory on classic "
-                                "captures of 1-4 MP, beside reconstruct's"),
+                                "captures of 1-24 MP, beside reconstruct's"),
+    "tiled_first_view": Benchmark("tiled_first_view.py", "a web export's first view in "
+                                  "OpenLIME, whole planes against deepzoom tiles"),
     "relight_latency": Benchmark("relight_latency.py", "a point and an area light on a 0.25 MP "
                                  "store, bytes read"),
     "scale_4k": Benchmark("scale_4k.py", "a phone's 4K video, whole (scale_4k/scale_4k.json)"),
@@ -66,6 +68,8 @@ BENCHMARKS = {
     "cluster_4k": Benchmark("cluster_4k.py", "the 4K reconstruct on dask scheduler + workers"),
     "scale_6d": Benchmark("bench_6d.py", "the paper's 6D configuration out of core"),
     "track": Benchmark("track_bench.py", "two phones on a board: calibration, tracking, sync"),
+    "calibration_frames": Benchmark("calibration_frames.py", "ltm calibrate's lens model "
+                                    "choice: frame SNR against the true lens"),
     "phone_effects": Benchmark("phone_effects.py", "the two-phone chain with phone effects"),
     "phone_effects_phone_size": Benchmark("phone_effects_phone_size.py", "the phone effects "
                                           "at camera B 720 px: product against oracle"),
