@@ -667,28 +667,31 @@ def encoded_images(images: xr.DataArray, transfer: str, *, exposure: str = CAPTU
     Yields
     ------
     numpy.ndarray
-        One light's code values ``(y, x[, color])``, light by light. At the capture's
-        exposure only one band's linear values are held beside them; ``auto`` holds every
-        light's linear values (float32), its gain being their 99.5th percentile.
+        One light's code values ``(y, x[, color])``, light by light. Every light's code
+        values are held, and at the capture's exposure one band's linear values beside them
+        (every light of a band computed at once: the frames are read once); ``auto`` holds
+        every light's linear values (float32), its gain being their 99.5th percentile.
     """
     exposure, _ = check_exposure(exposure, ev)
     depth = check_depth(depth)
     images = images.transpose(LIGHT, "y", ...)
     bands = _bands(images)
-    if exposure == AUTO:
+    if exposure == AUTO:  # its gain is every light's percentile: their values first
         linear = np.empty(images.shape, np.float32)
-        for i, image in enumerate(linear):
-            for rows in bands:
-                image[rows] = images[i, rows].values
+        for rows in bands:
+            linear[:, rows] = images[:, rows].values
         gain = np.float32(exposure_gain(linear, exposure, ev))
-        for image in linear:
-            yield _encode_bands(lambda rows, image=image: image[rows], image.shape, bands,
-                                gain, transfer, depth)
-        return
-    gain = np.float32(exposure_gain(np.empty(0), exposure, ev))
-    for i in range(images.sizes[LIGHT]):
-        yield _encode_bands(lambda rows, i=i: images[i, rows].values, images.shape[1:], bands,
-                            gain, transfer, depth)
+        values = lambda rows: linear[:, rows]  # noqa: E731
+    else:
+        gain = np.float32(exposure_gain(np.empty(0), exposure, ev))
+        values = lambda rows: images[:, rows].values  # noqa: E731
+    codes = None
+    for rows in bands:  # every light of a band at once: the frames are read once
+        code = encode(np.asarray(values(rows)) * gain, transfer, depth)
+        if codes is None:
+            codes = np.empty(images.shape, code.dtype)
+        codes[:, rows] = code
+    yield from codes
 
 
 def _bands(images: xr.DataArray) -> list[slice]:
@@ -707,14 +710,3 @@ def _bands(images: xr.DataArray) -> list[slice]:
             start += most
     return [*bands, slice(start, stop)] if stop > start else bands
 
-
-def _encode_bands(linear, shape: tuple[int, ...], bands: list[slice], gain: np.float32,
-                  transfer: str, depth: int | str) -> np.ndarray:
-    """One image of ``shape`` whose rows ``linear(rows)`` gives band by band, encoded."""
-    out = None
-    for rows in bands:
-        code = encode(np.asarray(linear(rows)) * gain, transfer, depth)
-        if out is None:
-            out = np.empty(shape, code.dtype)
-        out[rows] = code
-    return out
