@@ -29,9 +29,9 @@ from ltmstore.synthetic.render import GGX, render_ltm
 from ltmstore.synthetic.scenes import make_scene
 
 
-def _canvas(led_exponent: float) -> Regime:
+def _canvas(led_exponent: float, size: int = 16) -> Regime:
     grid = regime_lattice((16, 16))
-    rgb = render_ltm(make_scene("canvas", size=16, seed=0), grid, PLANE.height,
+    rgb = render_ltm(make_scene("canvas", size=size, seed=0), grid, PLANE.height,
                      shading=replace(GGX, led_exponent=led_exponent))
     lum = rgb @ LUMA.astype(np.float32)
     truth = lum * np.float32(EXPOSURE_PEAK / float(lum.max()))
@@ -44,8 +44,8 @@ def level_beam() -> Regime:
 
 
 def test_a_level_beam_is_found_and_modelled(level_beam):
-    """Measured: k = 2.5 chosen (held-out error 0.0047 against 0.046 at k = 0; k = 2 scores
-    0.0093 and its SNR 54.9 dB); SNR 54.5 dB against 27.6 without the beam."""
+    """Measured: k = 2.5 chosen (held-out error 0.0016 against 0.047 at k = 0, five folds; k = 2
+    scores 0.0022 and its SNR 54.9 dB); SNR 54.5 dB against 27.6 without the beam."""
     r = level_beam
     k, record = choose_led_exponent(r.samples, r.geometry)
     assert 1.5 <= k <= 3.0, record
@@ -60,11 +60,20 @@ def test_a_level_beam_is_found_and_modelled(level_beam):
     np.testing.assert_array_equal(physical.solve(r.samples, beamed), explicit)
 
 
-def test_without_a_beam_nothing_changes():
-    """Measured: held-out error 0.0030 at k = 0, 0.0050 at k = 1; the model is today's."""
-    r = _canvas(0.0)
+@pytest.mark.parametrize("size", [16, 32])
+def test_without_a_beam_the_choice_costs_nothing(size):
+    """Beam-free canvases. Measured (five folds): at 16 px k = 0.5 is chosen (held-out error
+    0.0011 against 0.0027 at k = 0) and relights above k = 0 (56.67 against 52.51 dB); at 32 px
+    k = 1 scores 17 % lower than k = 0 but relights 6.1 dB below it (47.03 against 53.12 dB):
+    under the 25 % margin k stays 0 (a 10 % margin, or two folds, took k = 1)."""
+    r = _canvas(0.0, size)
     k, record = choose_led_exponent(r.samples, r.geometry)
-    assert k == 0.0, record
-    np.testing.assert_array_equal(
-        physical.solve(r.samples, replace(r.geometry, led_exponent=k)),
-        physical.solve(r.samples, r.geometry, led_exponent=0.0))
+    assert k <= 0.5, record
+    plain = snr_db(r.truth, physical.solve(r.samples, r.geometry))
+    chosen = snr_db(r.truth, physical.solve(r.samples, replace(r.geometry, led_exponent=k)))
+    assert chosen > plain - 0.1, (chosen, plain, record)
+    if size == 32:
+        errors = record["errors"]
+        assert k == 0.0 and errors["1"] < 0.9 * errors["0"], record
+        beamed = snr_db(r.truth, physical.solve(r.samples, replace(r.geometry, led_exponent=1.0)))
+        assert plain > beamed + 5, (plain, beamed)
