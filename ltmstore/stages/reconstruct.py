@@ -274,7 +274,8 @@ def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
     placed by ``extent`` (None: no surface model, no beam), and its record: ingest's
     estimate (poses with the LED's axis, tilted: ingest records an axis held level as the
     profile's, not estimated), else the held-out choice of
-    :func:`ltmstore.stages.surface.choose_led_exponent` on a sample of the image's pixels."""
+    :func:`ltmstore.stages.surface.choose_led_exponent` on a sample of the image's pixels,
+    from what the axis's wobble measured (:func:`ltmstore.stages.surface.wobble_exponent`)."""
     if extent is None:
         return geometry, None
     beam = st.stages(group).get("ingest", {}).get("beam") or {}
@@ -283,7 +284,7 @@ def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
                                               "source": "ingest"}
     else:
         batch, placed = image_sample(group[SAMPLES], plan, geometry, extent)
-        k, record = sf.choose_led_exponent(batch, placed)
+        k, record = sf.choose_led_exponent(batch, placed, default=sf.wobble_exponent(beam))
     return replace(geometry, led_exponent=k), record
 
 

@@ -16,7 +16,7 @@ import pytest
 from ltmstore.core.dims import LUMA
 from ltmstore.judge.evaluate import snr_db
 from ltmstore.solve import physical
-from ltmstore.stages.surface import choose_led_exponent
+from ltmstore.stages.surface import choose_led_exponent, wobble_exponent
 from ltmstore.synthetic.regimes import (
     EXPOSURE_PEAK,
     PLANE,
@@ -77,3 +77,27 @@ def test_without_a_beam_the_choice_costs_nothing(size):
         assert k == 0.0 and errors["1"] < 0.9 * errors["0"], record
         beamed = snr_db(r.truth, physical.solve(r.samples, replace(r.geometry, led_exponent=1.0)))
         assert plain > beamed + 5, (plain, beamed)
+
+
+@pytest.mark.parametrize(("beam", "expected"), [
+    ({"exponent": 2.0, "source": "profile", "stderr": 0.73, "exponent_rgb": [2.33, 2.36, 2.38]},
+     2.3567),
+    ({"exponent": 2.0, "source": "profile", "stderr": 0.0, "exponent_rgb": [0.0, 0.0, 0.0]}, 0.0),
+    ({"exponent": 2.0, "source": "profile", "stderr": None, "exponent_rgb": None}, 0.0),
+    ({"exponent": 2.0, "source": "profile", "stderr": 3.1, "exponent_rgb": [9.0, 7.5, 8.0]}, 4.0),
+    ({}, 0.0),
+])
+def test_the_wobbles_measure_is_the_default(beam, expected):
+    """What ingest measured from the axis's wobble, however uncertain; nothing measured: 0."""
+    assert wobble_exponent(beam) == pytest.approx(expected, abs=1e-4)
+
+
+def test_the_default_is_kept_unless_clearly_worse(level_beam):
+    """From the level cos^2 beam's default k = 2: k = 2.5 scores 0.0016 against 0.0022 (27 %
+    lower), so it is taken; from k = 0 (0.047) too; from k = 3 (0.0044) as well."""
+    r = level_beam
+    for default in (0.0, 2.0, 3.0):
+        k, record = choose_led_exponent(r.samples, r.geometry, default=default)
+        assert k == 2.5 and record["default"] == default, record
+    k, record = choose_led_exponent(r.samples, r.geometry, default=2.4)
+    assert k == 2.4, record
