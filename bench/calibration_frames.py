@@ -64,7 +64,6 @@ from ltmstore.capture.calibrate import (
     load_intrinsics,
 )
 from ltmstore.capture.undistort import Undistorter
-from ltmstore.synthetic import writer
 from ltmstore.synthetic.phone_effects import DISTORTION_B, camera_b_matrix, distortion_maps
 from ltmstore.synthetic.phone_view import PhoneView, PlaneTexture
 from ltmstore.synthetic.raw import (
@@ -72,7 +71,7 @@ from ltmstore.synthetic.raw import (
     BOARD_SQUARE_MM,
     CAMERA_B_CALIBRATION_M,
     board_texture,
-    calibration_frames,
+    write_calibration_video,
 )
 from ltmstore.synthetic.scenes import scene_albedo
 
@@ -118,12 +117,9 @@ def write_video(lens: Lens, folder: Path) -> Path:
             (0.18, 0.3), 0.06, None
     texture = whole_texel_texture(spec) if lens.whole_texels else board_texture(spec)
     view = PhoneView(lens.matrix, lens.dist, lens.size, texture, None, distance=sum(height) / 2)
-    frames = calibration_frames(view, lens.seed, lens.views, height=height, spread=spread,
-                                aim=aim)
-    writer.write_video(folder / "calibration.mkv",
-                       (cv2.cvtColor(f, cv2.COLOR_GRAY2RGB) for f in frames))
     (folder / "board.json").write_text(json.dumps(spec.to_json(), indent=2) + "\n")
-    return folder / "calibration.mkv"
+    return write_calibration_video(folder / "calibration.mkv", view, lens.seed, lens.views,
+                                   height=height, spread=spread, aim=aim)
 
 
 def whole_texel_texture(spec) -> PlaneTexture:

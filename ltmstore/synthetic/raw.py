@@ -250,6 +250,16 @@ def calibration_frames(view: PhoneView, seed: int, n: int = CALIBRATION_VIEWS, *
         yield view.still(centre, r_wc, rng)
 
 
+def write_calibration_video(path: Path, view: PhoneView, seed: int, n: int, *,
+                            height: tuple[float, float], spread: float,
+                            aim: float | None = None) -> Path:
+    """``n`` still views of a board (:func:`calibration_frames`) filmed by ``view`` into the
+    video ``path``, as :func:`simulate_raw` films each phone's calibration."""
+    writer.write_video(path, _grey(calibration_frames(view, seed, n, height=height,
+                                                      spread=spread, aim=aim)))
+    return path
+
+
 def board_px_per_m(spec: BoardSpec) -> float:
     """The board texture's resolution: the nearest to :data:`TEXTURE_PX_PER_M` with a whole
     number of texels per square.
@@ -476,9 +486,9 @@ def _write_phone_a(setup: RawSetup, folder: Path, spec: BoardSpec, times: np.nda
         height = (0.28, 0.45) if setup.board else (0.18, 0.3)
         still = setup.phone_view(board_texture(spec), False, moving=False,
                                  distance=sum(height) / 2)
-        writer.write_video(folder / "calibration.mkv", _grey(calibration_frames(
-            still, setup.plan.seed, setup.calibration_views, height=height,
-            spread=0.15 if setup.board else 0.06)))
+        write_calibration_video(folder / "calibration.mkv", still, setup.plan.seed,
+                                setup.calibration_views, height=height,
+                                spread=0.15 if setup.board else 0.06)
     texture = _phone_a_texture(setup, spec)
     if not setup.board:
         _write_photograph(folder / PHOTOGRAPH, texture.painting(), setup.plan.seed)
@@ -522,9 +532,9 @@ def _write_camera_b(setup: RawSetup, folder: Path, spec_b: BoardSpec, line: Came
     if "distortion" in setup.effects and setup.calibration_views:
         view = PhoneView(matrix, setup.dist_b, (w, h), board_texture(spec_b), None,
                          distance=sum(CAMERA_B_CALIBRATION_M) / 2)
-        writer.write_video(folder / "calibration_b.mkv", _grey(calibration_frames(
-            view, plan.seed + 1, max(setup.calibration_views, 12),
-            height=CAMERA_B_CALIBRATION_M, spread=0.35, aim=0.03)))
+        write_calibration_video(folder / "calibration_b.mkv", view, plan.seed + 1,
+                                max(setup.calibration_views, 12),
+                                height=CAMERA_B_CALIBRATION_M, spread=0.35, aim=0.03)
     Intrinsics((w, h), matrix, np.array([*setup.dist_b, 0, 0, 0])) \
         .write(folder / "truth" / "intrinsics_b.json")
     records: list = []

@@ -25,7 +25,6 @@ from ltmstore.capture.calibrate import (
     load_intrinsics,
 )
 from ltmstore.core.errors import LtmError
-from ltmstore.synthetic import writer
 from ltmstore.synthetic.phone_effects import DISTORTION_B, camera_b_matrix, distortion_maps
 from ltmstore.synthetic.phone_view import PhoneView
 from ltmstore.synthetic.raw import (
@@ -33,7 +32,7 @@ from ltmstore.synthetic.raw import (
     BOARD_SQUARE_MM,
     CAMERA_B_CALIBRATION_M,
     board_texture,
-    calibration_frames,
+    write_calibration_video,
 )
 from ltmstore.synthetic.scenes import scene_albedo
 
@@ -45,11 +44,8 @@ WIDE_DIST = (-0.10, 0.03)
 def _video(folder, matrix, dist, size, spec, **views):
     view = PhoneView(matrix, dist, size, board_texture(spec), None,
                      distance=sum(views["height"]) / 2)
-    path = folder / "calibration.mkv"
-    writer.write_video(path, (cv2.cvtColor(f, cv2.COLOR_GRAY2RGB)
-                              for f in calibration_frames(view, n=20, **views)))
     (folder / "board.json").write_text(json.dumps(spec.to_json()))
-    return path
+    return write_calibration_video(folder / "calibration.mkv", view, n=20, **views)
 
 
 @pytest.fixture(scope="module")
