@@ -37,10 +37,7 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from browser import Browser  # noqa: E402
-
-OPENLIME_SRC = Path(os.environ.get(
-    "LTM_OPENLIME_SRC", Path.home() / ".cache" / "ltmstore-tests" / "openlime" / "src"))
+from browser import OPENLIME_SRC, Browser, openlime_import_map  # noqa: E402
 
 PAGE = """<!doctype html><html><head><style>
 html, body {{ margin: 0; background: #000 }}
@@ -103,13 +100,6 @@ class Counter(SimpleHTTPRequestHandler):
 
     def log_message(self, *args) -> None:
         pass
-
-
-def import_map() -> str:
-    """One module per OpenLIME file, imported with or without ``.js`` (see
-    ``tests/share/test_tiled_export.py``)."""
-    names = sorted(p.stem for p in OPENLIME_SRC.glob("*.js"))
-    return json.dumps({"imports": {f"/openlime/{n}": f"/openlime/{n}.js" for n in names}})
 
 
 def snapshot() -> dict:
@@ -198,7 +188,7 @@ def main() -> None:
                                      ("deepzoom", a.deepzoom, "deepzoom")):
             (root / name).symlink_to(folder.resolve(), target_is_directory=True)
             (root / f"page-{name}.html").write_text(PAGE.format(
-                layout=layout, folder=name, imports=import_map()))
+                layout=layout, folder=name, imports=openlime_import_map()))
         server = ThreadingHTTPServer(("127.0.0.1", 0),
                                      functools.partial(Counter, directory=str(root)))
         threading.Thread(target=server.serve_forever, daemon=True).start()

@@ -22,6 +22,21 @@ MISSING = ("chromium is missing: the browser tests need Debian's chromium packag
            "(`sudo apt-get install chromium`; .ci/run installs it)")
 
 
+# OpenLIME's sources (not on npm): a checkout's src/ (commit 5b4e27b, version 1.2.6)
+OPENLIME_SRC = Path(os.environ.get(
+    "LTM_OPENLIME_SRC", Path.home() / ".cache" / "ltmstore-tests" / "openlime" / "src"))
+
+
+def openlime_import_map() -> str:
+    """An import map for OpenLIME's sources served at ``/openlime/``. Its modules import each
+    other with and without ``.js`` (``LayoutTiles.js``: ``from "./Layout"``, ``Layer.js``: ``from
+    './Layout.js'``); without a bundler the browser would load two ``Layout`` modules, and
+    ``LayoutTiles`` would register its types on the one ``Layer`` does not use. The map makes the
+    two names one module."""
+    names = sorted(p.stem for p in OPENLIME_SRC.glob("*.js"))
+    return json.dumps({"imports": {f"/openlime/{n}": f"/openlime/{n}.js" for n in names}})
+
+
 def chromium_path() -> str:
     """The Chromium executable. When it is missing: a skip naming it and how to get it, or an
     AssertionError (a failure) where ``LTM_REQUIRE_BROWSER`` is set, as in CI."""

@@ -23,19 +23,15 @@ import os
 import threading
 import time
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
-from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import Browser
+from browser import OPENLIME_SRC, Browser
 from PIL import Image
 from rti_readers import psnr, read_web, reference, relit
 
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.share.export import export
-
-OPENLIME_SRC = Path(os.environ.get(
-    "LTM_OPENLIME_SRC", Path.home() / ".cache" / "ltmstore-tests" / "openlime" / "src"))
 
 PAGE = """<!doctype html><html><head><style>
 html, body {{ margin: 0; background: #000 }}

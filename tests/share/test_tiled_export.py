@@ -13,18 +13,17 @@ tile, which the export refuses).
 
 from __future__ import annotations
 
-import json
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import Browser
+from browser import OPENLIME_SRC, Browser, openlime_import_map
 from PIL import Image
 from pipeline_helpers import run_ltm
 from rti_readers import psnr, reference
-from test_openlime import OPENLIME_SRC, canvas, served  # noqa: F401 (served: a fixture)
+from test_openlime import canvas, served  # noqa: F401 (served: a fixture)
 
 from ltmstore.core.errors import LtmError
 from ltmstore.share.export import export
@@ -155,15 +154,6 @@ Object.assign(window, {{ viewer, layer }});
 
 
 
-def import_map() -> str:
-    """OpenLIME's modules import each other with and without ``.js`` (``LayoutTiles.js``:
-    ``from "./Layout"``, ``Layer.js``: ``from './Layout.js'``); without a bundler the browser
-    would load two ``Layout`` modules, and ``LayoutTiles`` would register its types on the one
-    ``Layer`` does not use. The map makes the two names one module."""
-    names = sorted(p.stem for p in OPENLIME_SRC.glob("*.js"))
-    return json.dumps({"imports": {f"/openlime/{n}": f"/openlime/{n}.js" for n in names}})
-
-
 # lowest PSNR of OpenLIME's deepzoom canvas against its image canvas (any of the 10 lights) and
 # largest difference in levels: measured 55.39 dB (10 lights: 55.4 to 58.2) / 4
 OPENLIME_LOWEST = (54.0, 6)
@@ -193,7 +183,7 @@ def test_openlime_draws_the_deepzoom_export(small_store, image_export, tmp_path,
     size = (report["width"], report["height"])
     for layout, folder in (("image", "image"), ("deepzoom", "dz")):
         (tmp_path / f"{folder}.html").write_text(PAGE.format(
-            w=size[0], h=size[1], layout=layout, folder=folder, imports=import_map()))
+            w=size[0], h=size[1], layout=layout, folder=folder, imports=openlime_import_map()))
     dirs = reference(str(small_store))[0]
     with Browser(64, 64) as browser:
         whole = draw(browser, f"{served}/image.html", size, dirs)
