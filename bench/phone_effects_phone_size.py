@@ -286,7 +286,7 @@ def run_capture(work: Path, scene: str, capture: str, args) -> dict:
     lattice = tuple(sim["lattice"])
     truth = acq / "truth.zarr"
     ideal = work / f"{scene}_none" / "raw"
-    if (acq / "calibration_b.mkv").exists():
+    if (acq / "calibration_b.mkv").exists() or args.tracked:  # tracking needs phone A's
         row["calibration"] = calibrate(acq, sim)
     row["product"] = measure(true_pose_copy(acq, sim, "product"), truth, lattice, args.color)
     _save(work, row)
