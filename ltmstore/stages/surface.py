@@ -470,7 +470,8 @@ def surface_theta(normal: np.ndarray, albedo: np.ndarray, specular: np.ndarray,
 # led_exponent) holds once k is known. Without ingest's estimate (poses with the LED's axis),
 # k is the value of this grid, refined by half a step about the best, whose model (no residual:
 # the beam shows most there) has the lowest held-out error on a sample of the image's pixels;
-# anything but 0 only where it lowers the error of k = 0 by LED_MARGIN. Measured on the 64 px
+# anything but the default (0, or what the axis's wobble measured: wobble_exponent) only where
+# it lowers the default's error by LED_MARGIN. Measured on the 64 px
 # simulated canvas (true poses, 32 x 32 lattice, 256 pixels, 2 folds): a level cos^2 beam
 # scored 0.074, 0.046, 0.029, 0.030, 0.035 at k = 0..4 (61 % below k = 0); the capture without
 # a beam 0.0241 at k = 0 and 0.0246 at k = 1 (2 % worse). Two folds (half the cells held out)
@@ -481,7 +482,7 @@ def surface_theta(normal: np.ndarray, albedo: np.ndarray, specular: np.ndarray,
 # the truth (47.03 against 53.12), while every level cos^2 beam of the regimes scored 30-96 %
 # lower at its best k: the margin is 25 %.
 LED_EXPONENTS = (0.0, 1.0, 2.0, 3.0, 4.0)
-LED_MARGIN = 0.25  # the default (no beam) unless clearly worse
+LED_MARGIN = 0.25  # the default unless clearly worse
 LED_PIXELS = 256
 LED_FOLDS = 5
 
