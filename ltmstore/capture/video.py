@@ -90,6 +90,9 @@ class VideoReader:
         self.allow_dropped = allow_dropped
         self.threaded = threaded
         self.dropped = {"damaged": 0, "missing": 0}
+        # frames of packets that could not be decoded, counted as damaged: not missing again
+        # where their time stamps leave the gap
+        self._undecoded = 0
         try:
             self._container = av.open(str(path))
             self._stream = self._container.streams.video[0]
@@ -140,9 +143,9 @@ class VideoReader:
             if errors and self.threaded:
                 raise ThreadedDecodeUnclean("; ".join(errors))
             damaged_until_key = bool(errors) or (damaged_until_key and not frame.key_frame)
-            if index > expected:
-                self._drop("missing", index - expected, f"frames {expected} to {index - 1} are "
-                           "missing from its time stamps")
+            if index > expected and (gap := self._not_undecoded(index - expected)):
+                self._drop("missing", gap, f"frames {expected} to {index - 1} are missing from "
+                           "its time stamps")
             expected = max(expected, index + 1)
             if damaged_until_key:
                 why = "; ".join(errors) or "it predicts from a damaged frame"
@@ -191,7 +194,15 @@ class VideoReader:
             return packet.decode()
         except av.error.FFmpegError as exc:
             self._drop("damaged", 1, f"the packet after frame {n} cannot be decoded ({exc})")
+            self._undecoded += 1
             return []
+
+    def _not_undecoded(self, absent: int) -> int:
+        """How many of ``absent`` frames are missing, not the frames of packets already counted
+        as damaged."""
+        known = min(absent, self._undecoded)
+        self._undecoded -= known
+        return absent - known
 
     def _check_complete(self, n: int) -> None:
         if self.threaded and (n == 0 or self.frame_count is None or n < self.frame_count):
@@ -204,10 +215,9 @@ class VideoReader:
                            f"(damaged header?), so a truncation cannot be found; pass "
                            f"{ALLOW_OPTION} to ingest what it holds")
             return
-        if n < self.frame_count:
-            self._drop("missing", self.frame_count - n, f"it ends after {n} of the "
-                       f"{self.frame_count} frames its header declares (truncated or corrupt "
-                       "file?)")
+        if n < self.frame_count and (absent := self._not_undecoded(self.frame_count - n)):
+            self._drop("missing", absent, f"it ends after {n} of the {self.frame_count} frames "
+                       "its header declares (truncated or corrupt file?)")
 
     def _drop(self, reason: str, count: int, why: str) -> None:
         if self.threaded:
