@@ -42,6 +42,8 @@ BENCHMARKS = {
                                    "surface's choice"),
     "rti_speed": Benchmark("rti_speed.py", "classic captures: ingest-rti + reconstruct beside "
                            "relight-cli"),
+    "height_peer": Benchmark("height_peer.py", "SynthRTI's given normals integrated: ltm maps "
+                             "--height beside relight-normals (BNI, FFT)"),
     "rti_peer": Benchmark("rti_peer.py", "classic captures: time to a relightable store, to the "
                           "refined one, held-out PSNR of each beside relight-cli's bases"),
     "rti_scale": Benchmark("rti_scale.py", "classic captures resized to 1-24 MP: time, peak "
