@@ -142,10 +142,15 @@ def chart(result: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     names = list(result["captures"])
-    fig, axes = plt.subplots(1, len(names), figsize=(3.4 * len(names), 3.4), squeeze=False)
-    for ax, name in zip(axes[0], names, strict=True):
+    columns = min(3, len(names))
+    rows = -(-len(names) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.4 * rows), squeeze=False)
+    for ax in axes.flat[len(names):]:
+        ax.set_visible(False)
+    for ax, name in zip(axes.flat, names, strict=False):
         row = result["captures"][name]
         points = [("ltm stage 1", row["stage1_s"], row["psnr"]["stage1"], "tab:blue"),
                   ("ltm both stages", row["both_s"], row["psnr"]["both"], "tab:red")]
@@ -153,13 +158,15 @@ def chart(result: dict, path: Path) -> None:
                     row["psnr"][f"relight_cli_{b}"], "0.4") for b in BASES]
         for label, seconds, db, colour in points:
             ax.scatter(seconds, db, color=colour)
-            ax.annotate(label, (seconds, db), fontsize=7, xytext=(3, 3),
+            ax.annotate(label, (seconds, db), fontsize=7, xytext=(4, 3),
                         textcoords="offset points")
         ax.set_xscale("log")
-        ax.set_title(f"{name} ({row['pixels'] / 1e6:.2f} MP, {row['lights']} lights)",
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.margins(x=0.35, y=0.12)
+        ax.set_title(f"{name} ({row['pixels'] / 1e6:.2g} MP, {row['lights']} lights)",
                      fontsize=9)
-        ax.set_xlabel("wall seconds (median)")
-    axes[0][0].set_ylabel("held-out PSNR (dB)")
+        ax.set_xlabel("wall seconds (median)", fontsize=8)
+        ax.set_ylabel("held-out PSNR (dB)", fontsize=8)
     fig.suptitle(f"Classic captures beside relight-cli (every {EVERY}th light hidden)",
                  fontsize=10)
     fig.tight_layout()
