@@ -9,6 +9,7 @@ truth. Bounds sit near the values measured when these tests were written (noted 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -61,18 +62,47 @@ def _relative_rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean((a - b) ** 2) / np.mean(b**2)))
 
 
+def _read_only(folder: Path) -> tuple[np.ndarray, float]:
+    """:func:`read_linear`, its frames made read-only: decoded once per module and shared by
+    the tests, which make their variants from it (a test that wrote into it would fail)."""
+    frames, fps = read_linear(folder)
+    frames.setflags(write=False)
+    return frames, fps
+
+
+@pytest.fixture(scope="module")
+def long_linear(long_capture):
+    """``long_capture``'s linear frames and frame rate (:func:`read_linear`), read-only."""
+    return _read_only(long_capture)
+
+
+@pytest.fixture(scope="module")
+def short_linear(short_capture):
+    """``short_capture``'s linear frames and frame rate (:func:`read_linear`), read-only."""
+    return _read_only(short_capture)
+
+
 @pytest.fixture(scope="module")
 def clean_long(long_capture, tmp_path_factory):
+    """``long_capture`` ingested: its record, its frames and the store (which tests copy
+    before they change it)."""
     store = tmp_path_factory.mktemp("phone") / "clean.zarr"
-    return ingest(long_capture, store, progress=False), _frames(store)
+    return ingest(long_capture, store, progress=False), _frames(store), store
 
 
-def test_locked_exposure_comes_out_unchanged(short_capture, tmp_path):
+@pytest.fixture(scope="module")
+def clean_short(short_capture, tmp_path_factory):
+    """``short_capture`` ingested: its record and its frames."""
+    store = tmp_path_factory.mktemp("phone") / "clean.zarr"
+    return ingest(short_capture, store, progress=False), _frames(store)
+
+
+def test_locked_exposure_comes_out_unchanged(short_capture, clean_short):
     from ltmstore.capture.video import VideoReader
     from ltmstore.core.dims import rgb_to_ycbcr
     from ltmstore.core.transfer import transfer_lut
 
-    record = ingest(short_capture, tmp_path / "s.zarr", progress=False)
+    record, stored = clean_short
     drift = record["drift"]
     # measured: RMS log gain 0.0015-0.003 on clean captures, threshold >= 0.01
     assert drift["judged"] and not drift["corrected"], drift
@@ -83,11 +113,11 @@ def test_locked_exposure_comes_out_unchanged(short_capture, tmp_path):
     with VideoReader(short_capture / "video.mkv") as video:
         plain = np.stack([rgb_to_ycbcr(lut[rgb])[..., 0] for _, rgb in video.frames()])
     # unchanged: what ingest stores (float16) of the plain linear luminance
-    np.testing.assert_array_equal(_frames(tmp_path / "s.zarr"), plain.astype(np.float16))
+    np.testing.assert_array_equal(stored, plain.astype(np.float16))
 
 
-def test_drift_is_estimated_and_corrected(long_capture, clean_long, tmp_path):
-    frames, fps = read_linear(long_capture)
+def test_drift_is_estimated_and_corrected(long_capture, long_linear, clean_long, tmp_path):
+    frames, fps = long_linear
     gains = drift_gains(len(frames), fps, exposure=0.25, white_balance=0.06)
     folder = write_variant(long_capture, tmp_path / "drift", frames * gains[:, None, None], fps)
     record = ingest(folder, tmp_path / "d.zarr", progress=False)
@@ -103,14 +133,15 @@ def test_drift_is_estimated_and_corrected(long_capture, clean_long, tmp_path):
     assert abs(np.log(scale)) < 0.02  # measured -0.011
 
 
-def test_uncorrectable_drift_is_refused(long_capture, short_capture, tmp_path):
-    frames, fps = read_linear(long_capture)
+def test_uncorrectable_drift_is_refused(long_capture, short_capture, long_linear, short_linear,
+                                        tmp_path):
+    frames, fps = long_linear
     gains = drift_gains(len(frames), fps, exposure=1.0, white_balance=0.0)  # 7.5x span
     folder = write_variant(long_capture, tmp_path / "big", frames * gains[:, None, None], fps)
     with pytest.raises(LtmError, match=r"factor .*AE/AWB lock"):
         ingest(folder, tmp_path / "big.zarr", progress=False)
     assert not (tmp_path / "big.zarr").exists()
-    frames, fps = read_linear(short_capture)  # 9 s: the path comes back too rarely
+    frames, fps = short_linear  # 9 s: the path comes back too rarely
     gains = drift_gains(len(frames), fps, exposure=0.25, white_balance=0.0)
     folder = write_variant(short_capture, tmp_path / "short", frames * gains[:, None, None], fps)
     with pytest.raises(LtmError, match=r"cannot be measured.*lock exposure"):
@@ -118,13 +149,14 @@ def test_uncorrectable_drift_is_refused(long_capture, short_capture, tmp_path):
     assert not (tmp_path / "short.zarr").exists()
 
 
-def test_a_user_who_locked_the_exposure_is_not_turned_away(short_capture, tmp_path):
+def test_a_user_who_locked_the_exposure_is_not_turned_away(short_capture, short_linear,
+                                                            tmp_path):
     """A drift the path cannot measure (9 s, 25 % exposure wave: the refusal above) is refused
     with one line that names ``--exposure-locked``; with it, the user's word is taken: the
     store is made, the frames left uncorrected, and the record says so."""
     from pipeline_helpers import run_ltm
 
-    frames, fps = read_linear(short_capture)
+    frames, fps = short_linear
     gains = drift_gains(len(frames), fps, exposure=0.25, white_balance=0.0)
     folder = write_variant(short_capture, tmp_path / "short", frames * gains[:, None, None], fps)
     refused = run_ltm("ingest", folder, tmp_path / "refused.zarr")
@@ -138,8 +170,9 @@ def test_a_user_who_locked_the_exposure_is_not_turned_away(short_capture, tmp_pa
     assert drift["stderr_data_log_gain"] > 0.02, drift  # what made it unmeasurable
 
 
-def test_room_light_is_measured_in_the_lead_and_removed(long_capture, clean_long, tmp_path):
-    frames, fps = read_linear(long_capture)
+def test_room_light_is_measured_in_the_lead_and_removed(long_capture, long_linear, clean_long,
+                                                        tmp_path):
+    frames, fps = long_linear
     ambient = room_light(frames, 0.3)
     lit = with_lead(frames, ambient, LEAD, np.random.default_rng(0))
     folder = write_variant(long_capture, tmp_path / "amb", lit, fps, time_offset=LEAD / fps)
@@ -153,8 +186,8 @@ def test_room_light_is_measured_in_the_lead_and_removed(long_capture, clean_long
     assert _relative_rms(got[LEAD:], clean_long[1]) < 0.01
 
 
-def test_sync_finds_the_offset_with_the_lead(long_capture, tmp_path):
-    frames, fps = read_linear(long_capture)
+def test_sync_finds_the_offset_with_the_lead(long_capture, long_linear, tmp_path):
+    frames, fps = long_linear
     lit = with_lead(frames, room_light(frames, 0.3), LEAD, np.random.default_rng(1))
     folder = write_variant(long_capture, tmp_path / "sync", lit, fps)
     est = sync_acquisition(folder, progress=False)
@@ -163,8 +196,9 @@ def test_sync_finds_the_offset_with_the_lead(long_capture, tmp_path):
     assert abs(est["time_offset"] - LEAD / fps) < 0.004, est
 
 
-def test_distortion_is_undone_with_the_calibration(short_capture, tmp_path):
-    frames, fps = read_linear(short_capture)
+def test_distortion_is_undone_with_the_calibration(short_capture, short_linear, clean_short,
+                                                  tmp_path):
+    frames, fps = short_linear
     intr = camera(frames.shape[2], frames.shape[1], k1=-0.15)  # the sim's camera B k1
     bent = distort(frames, intr)
     folder = write_variant(short_capture, tmp_path / "dist", bent, fps,
@@ -172,8 +206,7 @@ def test_distortion_is_undone_with_the_calibration(short_capture, tmp_path):
     intr.write(folder / "cam.json")
     record = ingest(folder, tmp_path / "u.zarr", progress=False)
     assert record["undistort"]["file"].endswith("cam.json")
-    ingest(short_capture, tmp_path / "c.zarr", progress=False)
-    clean = _frames(tmp_path / "c.zarr")
+    clean = clean_short[1]
     plain = write_variant(short_capture, tmp_path / "plain", bent, fps)
     ingest(plain, tmp_path / "p.zarr", progress=False)
     fixed = snr_db(clean, _frames(tmp_path / "u.zarr"))
@@ -182,8 +215,8 @@ def test_distortion_is_undone_with_the_calibration(short_capture, tmp_path):
     assert fixed > 24.5 and fixed > left + 5, (fixed, left)
 
 
-def test_calibration_of_another_size_is_refused(short_capture, tmp_path):
-    folder = write_variant(short_capture, tmp_path / "size", read_linear(short_capture)[0],
+def test_calibration_of_another_size_is_refused(short_capture, short_linear, tmp_path):
+    folder = write_variant(short_capture, tmp_path / "size", short_linear[0],
                            30.0, extra={"camera_calibration": "cam.json"})
     camera(64, 48, k1=-0.1).write(folder / "cam.json")
     with pytest.raises(LtmError, match=r"64x48 pixel frames but video .* has 32x32"):
@@ -196,21 +229,25 @@ def test_calibration_of_another_size_is_refused(short_capture, tmp_path):
         ingest(folder, tmp_path / "x.zarr", progress=False)
 
 
-def test_reconstruction_of_a_drifting_capture_with_room_light(long_capture, tmp_path, client):
+def test_reconstruction_of_a_drifting_capture_with_room_light(long_capture, long_linear,
+                                                              clean_long, tmp_path, client):
     """The whole chain: a 25 % exposure wave (running through the lead too), a white-balance
     wander and a room light of 30 % of the lit level with its LED-off lead, against the same
     capture clean. A drifting camera has no true exposure: SNR_Y after one best scale."""
     from ltmstore.stages.reconstruct import reconstruct
 
-    frames, fps = read_linear(long_capture)
+    frames, fps = long_linear
     lit = with_lead(frames, room_light(frames, 0.3), LEAD, np.random.default_rng(2))
     gains = drift_gains(len(lit), fps, exposure=0.25, white_balance=0.06)
     folder = write_variant(long_capture, tmp_path / "phone", lit * gains[:, None, None], fps,
                            time_offset=LEAD / fps)
     truth = xr.open_zarr(long_capture / "truth.zarr", consolidated=False)["ltm"].values
     snr = {}
-    for name, source in (("clean", long_capture), ("phone", folder)):
-        record = ingest(source, tmp_path / f"{name}.zarr", progress=False)
+    # the clean capture's ingest is the module's (copied: reconstruct writes into the store)
+    shutil.copytree(clean_long[2], tmp_path / "clean.zarr")
+    for name, source in (("clean", None), ("phone", folder)):
+        if source is not None:
+            record = ingest(source, tmp_path / f"{name}.zarr", progress=False)
         reconstruct(tmp_path / f"{name}.zarr", client=client, lattice=(16, 16), progress=False)
         ltm = xr.open_zarr(tmp_path / f"{name}.zarr", consolidated=False)["ltm"].values
         snr[name] = snr_db(truth, ltm * (np.sum(ltm * truth) / np.sum(ltm * ltm)))
