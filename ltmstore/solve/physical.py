@@ -425,19 +425,14 @@ def far_lights(directions: np.ndarray, n: int, lobe: str = "ggx") -> Lights:
                   np.ones(shape[1:], dtype=np.float32), far=True, lobe=lobe)
 
 
-def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER,
-               start: np.ndarray | None = None) -> np.ndarray:
+def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.ndarray:
     """Parameters ``(n, 3, 6)`` (per colour channel) fitted to linear RGB ``rgb (n, M, 3)``
-    observed at every light: the normal and roughness from the luminance (one nonlinear fit,
-    from the geometry of ``start (n, 6)`` where given: :func:`fit_parameters`), albedo, lobe
-    strength and floor per channel (linear least squares at that geometry)."""
+    observed at every light: the normal and roughness from the luminance (one nonlinear fit),
+    albedo, lobe strength and floor per channel (linear least squares at that geometry)."""
     from ltmstore.core.dims import LUMA
 
     luminance = rgb @ LUMA
-    ones = np.ones_like(luminance)
-    if start is not None:  # the luminance's own albedo, lobe and floor at that geometry
-        start = _linear_terms(_clip(np.array(start, dtype=np.float64)), lights, luminance, ones)
-    theta, w = fit_parameters(luminance, ones, lights, n_iter=n_iter, start=start)
+    theta, w = fit_parameters(luminance, np.ones_like(luminance), lights, n_iter=n_iter)
     basis = _basis(theta, lights)  # the same geometry for the three channels
     # At the largest roughness a far light's GGX lobe is as flat as the floor: their split was
     # left to rounding, and clipping the negative one at 0 could leave a pixel several times

@@ -227,14 +227,11 @@ def sample_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, pixels: n
     return np.concatenate(parts, axis=1)
 
 
-def fit_pixels(rgb: np.ndarray, train: np.ndarray, lobe: str = "ggx",
-               start: np.ndarray | None = None) -> np.ndarray:
+def fit_pixels(rgb: np.ndarray, train: np.ndarray, lobe: str = "ggx") -> np.ndarray:
     """Per-channel parameters ``(p, 3, 6)`` of the pixels ``rgb (t, p, 3)`` (linear), the
-    model's lobe of the distribution ``lobe`` (``physical.LOBES``); ``start (p, 6)``: the
-    parameters to start from (``physical.fit_parameters``; the model's own starts without)."""
+    model's lobe of the distribution ``lobe`` (``physical.LOBES``)."""
     values = np.moveaxis(rgb, 0, 1).astype(np.float32)
-    return physical.fit_colour(values, physical.far_lights(train, len(values), lobe),
-                               start=start)
+    return physical.fit_colour(values, physical.far_lights(train, len(values), lobe))
 
 
 def fit_image(rgb: np.ndarray, train: np.ndarray, lobe: str = "ggx", *,
@@ -309,13 +306,12 @@ def relit(encoded: np.ndarray, theta: np.ndarray, train: np.ndarray, query: np.n
     return base + correction(theta, train, query, smoother, color=False, lobe=lobe)
 
 
-def fitted(rgb: np.ndarray, train: np.ndarray, lobe: str = "ggx",
-           start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Model]:
+def fitted(rgb: np.ndarray, train: np.ndarray, lobe: str = "ggx"
+           ) -> tuple[np.ndarray, np.ndarray, Model]:
     """The encoded luminance ``(n, p)`` of ``rgb (n, p, 3)`` (linear), its surface parameters
-    (the lobe of the distribution ``lobe``; from the geometry ``start (p, 6)`` where given) and
-    residual smoother (:func:`choose_smoother`)."""
+    (the lobe of the distribution ``lobe``) and residual smoother (:func:`choose_smoother`)."""
     encoded = linear_to_srgb((rgb @ LUMA).astype(np.float32))
-    theta = fit_pixels(rgb, train, lobe, start)
+    theta = fit_pixels(rgb, train, lobe)
     return encoded, theta, choose_smoother(encoded, theta, train, lobe)
 
 
@@ -363,7 +359,7 @@ def cross_validated(rgb: np.ndarray, train: np.ndarray, classic: Model, *,
         for exposure in (False, True):
             if exposure:
                 x = x / exposures(x, train[fit], surface, lobe)[:, None, None]
-                surface = fitted(x, train[fit], lobe, start=surface[1][:, 1])
+                surface = fitted(x, train[fit], lobe)
             seen, theta, smoother = surface
             ours = relit(seen, theta, train[fit], train[test], smoother, lobe)
             theirs = theirs_weights @ seen
