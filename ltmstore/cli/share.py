@@ -164,7 +164,12 @@ def register_view(sub) -> None:
                        description="Serve a page on this machine only (127.0.0.1) where the "
                        "store is relit with the light under the pointer: zoom and pan, point or "
                        "area light, the view of a 6D store, the expected_error map. Prints the "
-                       "URL; Ctrl-C stops.")
+                       "URL; Ctrl-C stops. Each light is also an IIIF Image API 3.0 image "
+                       "service any tiled viewer opens: URL/iiif/LIGHT/info.json, tiles "
+                       "URL/iiif/LIGHT/REGION/SIZE/0/default.png|jpg, LIGHT being R,S (as "
+                       "ltm relight --light) or LX,LY,LZ (--direction), optionally with ;ev=E "
+                       "(stops) and ;view=P,Q (6D), e.g. /iiif/0.1,-0.05;ev=1/full/max/0/"
+                       "default.png. A tile reads and relights only its region.")
     p.add_argument("store", help="reconstructed store (ltm reconstruct)")
     p.add_argument("--port", type=int, default=0, help="port (default: a free one)")
     p.add_argument("--host", default="127.0.0.1",

@@ -19,6 +19,15 @@ it for relit images, one request in flight at a time:
     ``X-Ltm-Light`` header (JSON).
 ``GET /expected_error.png``
     The store's ``expected_error (y, x)`` as a colour map (transparent where unknown).
+``GET /iiif/{light}/info.json``, ``GET /iiif/{light}/{region}/{size}/0/default.png|jpg``
+    Each light an IIIF Image API 3.0 image service (:mod:`ltmstore.share.iiif`): ``{light}``
+    is ``R,S`` (``ltm relight --light``) or ``LX,LY,LZ`` (``--direction``), with ``;ev=E``
+    and, 6D, ``;view=P,Q``; any tiled IIIF viewer shows the store relit there. A tile reads
+    and relights its region only (:mod:`ltmstore.share.relit_tiles`) and equals that region of
+    ``ltm relight``'s image (a reduced size: area-averaged in linear light). A malformed or
+    out-of-range light, region or size is answered 400, a feature not implemented (upscaling,
+    rotation, another quality or format) 501. No CORS header is sent: a viewer on another
+    origin cannot read the store's images.
 
 Only loopback addresses are served (:data:`LOOPBACK`), and requests whose ``Host`` header names
 another machine are refused (DNS rebinding).
@@ -46,7 +55,7 @@ from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs, unquote, urlsplit
 
 import numpy as np
 import xarray as xr
@@ -56,6 +65,8 @@ from ltmstore.core.errors import LtmError, LtmWarning
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import AUTO, CAPTURE, check_exposure, encode_images
+from ltmstore.share import iiif
+from ltmstore.share.relit_tiles import RelitTiles
 from ltmstore.stages.by_light import by_light_name
 from ltmstore.stages.relight import disk_light, relight
 
@@ -128,6 +139,7 @@ class Viewer:
         if self.views and acq.get("view_plane"):
             self.views = {d: [float(v) for v in acq["view_plane"][d]] for d in (P, Q)}
         self._lock = threading.Lock()
+        self.tiles = RelitTiles(self.ds, self.transfer, self._lock)
         self.render_linear(self.light_at(0.0, 0.0))  # reads the store: fails early
 
     # -- the pointer and the light ---------------------------------------------------------
@@ -198,6 +210,33 @@ class Viewer:
         rgba[..., 3] = np.where(finite, 255, 0)
         return png(rgba), top
 
+    def iiif_answer(self, path: str, base: str) -> tuple[HTTPStatus, bytes, str, dict]:
+        """The answer to ``/iiif/...`` (``path``): status, body, content type and headers;
+        ``base`` is ``http://host:port`` as the client named it.
+
+        Raises
+        ------
+        LtmError
+            A malformed or out-of-range light, region or size (400).
+        ltmstore.share.iiif.Unsupported
+            A valid request for a feature not implemented (501).
+        """
+        raw = path[len(iiif.PREFIX):].split("/")
+        params = [unquote(p) for p in raw]
+        if len(params) == 1 and params[0]:
+            return (HTTPStatus.SEE_OTHER, b"", "text/plain",
+                    {"Location": f"{base}{iiif.PREFIX}{raw[0]}/info.json"})
+        if len(params) == 2 and params[1] == "info.json":
+            with self._lock:
+                _, notes = self.tiles.image(iiif.parse_light(params[0]))  # checks the light
+            body = iiif.info(f"{base}{iiif.PREFIX}{raw[0]}", self.tiles.width, self.tiles.height)
+            return HTTPStatus.OK, json.dumps(body).encode(), "application/json", _noted(notes)
+        if len(params) == 5:
+            request = iiif.parse_request(params, self.tiles.width, self.tiles.height)
+            body, notes = self.tiles.tile(request)
+            return HTTPStatus.OK, body, iiif.FORMATS[request.fmt], _noted(notes)
+        return HTTPStatus.NOT_FOUND, b"not found", "text/plain", {}
+
     def info(self) -> dict:
         """What the page needs to know about the store."""
         ltm = self.ds[LTM]
@@ -211,6 +250,11 @@ class Viewer:
                 "acquisition", {}).get("plane", {}).get("unit", "m"),
             "views": self.views, "expected_error": EXPECTED_ERROR in self.ds,
         }
+
+
+def _noted(notes: list[str]) -> dict:
+    """The ``X-Ltm-Warning`` header of relight's first warning (none without one)."""
+    return {"X-Ltm-Warning": notes[0].encode("ascii", "replace").decode()} if notes else {}
 
 
 def in_memory(ds: xr.Dataset, limit: int = CACHED_BYTES) -> xr.Dataset:
@@ -279,13 +323,16 @@ class Handler(BaseHTTPRequestHandler):
                 body, notes = viewer.render_png(light, ev)
                 headers = {"X-Ltm-Light": json.dumps(light.to_json()),
                            "X-Ltm-Render-Ms": f"{1000 * (time.perf_counter() - start):.1f}"}
-                if notes:
-                    headers["X-Ltm-Warning"] = notes[0].encode("ascii", "replace").decode()
+                headers.update(_noted(notes))
                 return self._send(HTTPStatus.OK, body, "image/png", headers)
+            if url.path.startswith(iiif.PREFIX):
+                return self._send(*viewer.iiif_answer(url.path, f"http://{self.headers['Host']}"))
             if url.path == "/expected_error.png" and viewer.info()["expected_error"]:
                 body, top = viewer.error_png()
                 return self._send(HTTPStatus.OK, body, "image/png",
                                   {"X-Ltm-Error-Max": f"{top:.6g}"})
+        except iiif.Unsupported as exc:
+            return self._send(HTTPStatus.NOT_IMPLEMENTED, str(exc).encode(), "text/plain")
         except LtmError as exc:
             return self._send(HTTPStatus.BAD_REQUEST, str(exc).encode(), "text/plain")
         except ValueError as exc:  # a chunk that fails its checksum, found while reading
