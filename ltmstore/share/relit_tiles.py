@@ -81,7 +81,7 @@ def row_bands(chunks: tuple[int, ...], start: int, stop: int,
     edges = np.concatenate([[0], np.cumsum(chunks)])
     cuts = [e for e in edges if start < e < stop]
     bands, first = [], start
-    for cut, after in zip(cuts, [*cuts[1:], stop], strict=True):
+    for cut, after in zip(cuts, [*cuts[1:], stop][:len(cuts)], strict=True):
         if (after - first) * width > limit:
             bands.append(slice(first, int(cut)))
             first = int(cut)

@@ -1,0 +1,285 @@
+"""``ltm view``'s IIIF tiles: the real command on loopback, real HTTP; tiles against ``ltm
+relight``'s image of the whole store, bytes read against the whole image's."""
+
+from __future__ import annotations
+
+import collections
+import functools
+import io
+import json
+import shutil
+import socket
+import tempfile
+from urllib.parse import urlsplit
+
+import numpy as np
+import pytest
+import zarr
+from PIL import Image
+from pipeline_helpers import run_ltm, served_view
+
+from ltmstore.core.store import CountingStore, open_store
+from ltmstore.core.transfer import encode_images
+from ltmstore.share import iiif
+from ltmstore.share.iiif import LightId
+from ltmstore.share.relit_tiles import RelitTiles, area_resample, row_bands
+from ltmstore.stages.by_light import SUFFIX, by_light_name, write_by_light
+from ltmstore.stages.relight import relight
+
+NEAR_LIGHT = (0.1, -0.05)  # on small_store's plane, r and s in [-0.2, 0.2]
+FAR_LIGHT = (0.3, 0.2)  # (lx, ly) inside the unit disk
+
+
+def get(address: tuple[str, int], path: str, host: str | None = None) -> tuple[int, dict, bytes]:
+    """One GET on a new connection: (status, headers, body)."""
+    host = host or f"127.0.0.1:{address[1]}"
+    with socket.create_connection(address, timeout=60) as sock:
+        sock.sendall(f"GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n".encode())
+        data = b""
+        while chunk := sock.recv(65536):
+            data += chunk
+    head, _, body = data.partition(b"\r\n\r\n")
+    lines = head.decode().split("\r\n")
+    headers = dict(line.split(": ", 1) for line in lines[1:])
+    return int(lines[0].split(" ", 2)[1]), headers, body
+
+
+def decoded(body: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(body)))
+
+
+@functools.cache
+def cli_image(store, *args) -> np.ndarray:
+    """The PNG ``ltm relight STORE ARGS`` writes, as code values (run once per arguments)."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = f"{folder}/relit.png"
+        proc = run_ltm("relight", store, *args, "-o", out)
+        assert proc.returncode == 0, proc.stderr
+        return np.asarray(Image.open(out))
+
+
+def box_average(values: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Area averaging by replication (independent of area_matrix): each pixel repeated
+    ``width`` (``height``) times, then means over runs of the input's length."""
+    h, w = values.shape[:2]
+    wide = np.repeat(values.astype(np.float64), width, axis=1)
+    wide = wide.reshape(h, width, w, *values.shape[2:]).mean(axis=2)
+    tall = np.repeat(wide, height, axis=0)
+    return tall.reshape(height, h, width, *values.shape[2:]).mean(axis=1)
+
+
+@pytest.fixture(scope="module")
+def near(small_store):
+    with served_view(small_store) as (proc, url):
+        url = urlsplit(url)
+        yield proc, (url.hostname, url.port)
+
+
+@pytest.fixture(scope="module")
+def far(far_store):
+    with served_view(far_store) as (proc, url):
+        url = urlsplit(url)
+        yield proc, (url.hostname, url.port)
+
+
+# -- the grammar ----------------------------------------------------------------------------
+
+def test_regions_sizes_and_scale_factors_follow_the_spec():
+    assert iiif.parse_region("full", 40, 30) == (0, 0, 40, 30)
+    assert iiif.parse_region("square", 40, 30) == (5, 0, 30, 30)
+    assert iiif.parse_region("30,20,64,64", 40, 30) == (30, 20, 10, 10)  # cropped at the edge
+    assert iiif.parse_region("pct:50,0,50,100", 40, 30) == (20, 0, 20, 30)
+    assert iiif.parse_size("max", 10, 6) == (10, 6)
+    assert iiif.parse_size("5,", 10, 6) == (5, 3)
+    assert iiif.parse_size(",3", 10, 6) == (5, 3)
+    assert iiif.parse_size("7,2", 10, 6) == (7, 2)
+    assert iiif.parse_size("!5,5", 10, 6) == (5, 3)
+    assert iiif.parse_size("pct:50", 10, 6) == (5, 3)
+    # the implementation notes' tiles: 1000 x 700 at scale 4, tile 256: its last column
+    assert iiif.parse_size("226,", 1000 - 3 * 256, 700) == (226, 682)
+    assert iiif.scale_factors(1000, 700, 256) == [1, 2, 4]
+    assert iiif.scale_factors(32, 32, 256) == [1]
+    light = iiif.parse_light("0.3,0.2,0.9;ev=-1.5")
+    assert light == LightId(direction=(0.3, 0.2, 0.9), ev=-1.5)
+
+
+@pytest.mark.parametrize(("func", "text", "match"), [
+    (lambda t: iiif.parse_region(t, 32, 32), "40,0,8,8", "outside the 32 x 32 image"),
+    (lambda t: iiif.parse_region(t, 32, 32), "0,0,0,8", "empty"),
+    (lambda t: iiif.parse_region(t, 32, 32), "-1,0,8,8", "must be full, square"),
+    (lambda t: iiif.parse_size(t, 16, 16), "17,", "at most the region's 16 x 16"),
+    (lambda t: iiif.parse_size(t, 16, 16), "0,4", "at least 1"),
+    (lambda t: iiif.parse_size(t, 16, 16), "full", "must be max"),
+    (iiif.parse_light, "0.1", "light '0.1' must be 2 or 3 finite numbers"),
+    (iiif.parse_light, "nan,0", "finite"),
+    (iiif.parse_light, "0,0;ev=99", "ev 99.0 must be a finite number of stops"),
+    (iiif.parse_light, "0,0;ev=auto", "which a tile cannot know"),
+    (iiif.parse_light, "0,0;gain=2", "option 'gain=2' is unknown"),
+    (iiif.parse_rotation, "x", "rotation 'x' must be a number"),
+    (iiif.parse_quality_format, "default.bmp", "must be default.png or default.jpg"),
+])
+def test_malformed_parameters_are_named(func, text, match):
+    with pytest.raises(iiif.LtmError, match=match):
+        func(text)
+
+
+def test_area_resample_is_the_area_average():
+    values = np.random.default_rng(0).random((7, 11, 3)).astype(np.float32)
+    for width, height in [(11, 7), (5, 3), (4, 7), (1, 1), (10, 6)]:
+        np.testing.assert_allclose(area_resample(values, width, height),
+                                   box_average(values, width, height), rtol=1e-6, atol=1e-7)
+
+
+def test_row_bands_end_on_chunk_boundaries():
+    assert row_bands((4, 4, 4), 2, 11, width=1, limit=100) == [slice(2, 11)]
+    assert row_bands((4, 4, 4), 2, 11, width=1, limit=4) == [slice(2, 4), slice(4, 8),
+                                                             slice(8, 11)]
+    assert row_bands((12,), 2, 11, width=100, limit=1) == [slice(2, 11)]  # one chunk: whole
+
+
+# -- the server -----------------------------------------------------------------------------
+
+def test_info_json_describes_a_level0_service(near, small_store):
+    _, address = near
+    status, headers, body = get(address, "/iiif/0.1,-0.05/info.json")
+    assert status == 200 and headers["Content-Type"] == "application/json"
+    info = json.loads(body)
+    ds = open_store(small_store)
+    assert info == {
+        "@context": "http://iiif.io/api/image/3/context.json",
+        "id": f"http://127.0.0.1:{address[1]}/iiif/0.1,-0.05", "type": "ImageService3",
+        "protocol": "http://iiif.io/api/image", "profile": "level0",
+        "width": ds.sizes["x"], "height": ds.sizes["y"],
+        "tiles": [{"width": 256, "height": 256, "scaleFactors": [1]}],
+        "extraFormats": ["png"], "extraFeatures": iiif.EXTRA_FEATURES}
+    status, headers, _ = get(address, "/iiif/0.1,-0.05")
+    assert status == 303 and headers["Location"] == info["id"] + "/info.json"
+
+
+@pytest.mark.parametrize("region", ["full", "0,0,16,16", "5,9,20,11", "24,24,100,100"])
+def test_a_tile_is_that_region_of_ltm_relights_image(near, small_store, region):
+    _, address = near
+    whole = cli_image(small_store, "--light", "0.1,-0.05")
+    x, y, w, h = iiif.parse_region(region, whole.shape[1], whole.shape[0])
+    status, headers, body = get(address, f"/iiif/0.1,-0.05/{region}/max/0/default.png")
+    assert status == 200 and headers["Content-Type"] == "image/png"
+    np.testing.assert_array_equal(decoded(body), whole[y:y + h, x:x + w])
+
+
+def test_ev_and_direction_identifiers_are_ltm_relights(near, small_store):
+    _, address = near
+    whole = cli_image(small_store, "--light", "0.1,-0.05", "--ev", "1.5")
+    _, _, body = get(address, "/iiif/0.1,-0.05;ev=1.5/8,8,16,16/16,16/0/default.png")
+    np.testing.assert_array_equal(decoded(body), whole[8:24, 8:24])
+    whole = cli_image(small_store, "--direction", "0.2,-0.1,0.9")
+    _, _, body = get(address, "/iiif/0.2,-0.1,0.9/0,16,32,16/max/0/default.png")
+    np.testing.assert_array_equal(decoded(body), whole[16:32])
+
+
+@pytest.mark.parametrize(("region", "size"), [("full", "16,16"), ("4,6,20,18", "7,5"),
+                                              ("full", "!10,10")])
+def test_a_scaled_tile_is_the_area_averaged_region(near, small_store, region, size):
+    _, address = near
+    ds = open_store(small_store)
+    linear = relight(ds, [NEAR_LIGHT]).isel(light=0).values
+    x, y, w, h = iiif.parse_region(region, linear.shape[1], linear.shape[0])
+    ow, oh = iiif.parse_size(size, w, h)
+    expected = encode_images(box_average(linear[y:y + h, x:x + w], ow, oh)[None],
+                             ds.attrs["acquisition"].get("transfer", "srgb"))[0]
+    status, _, body = get(address, f"/iiif/0.1,-0.05/{region}/{size}/0/default.png")
+    assert status == 200
+    got = decoded(body).astype(int)
+    assert got.shape == expected.shape == (oh, ow, 3)
+    assert np.abs(got - expected).max() <= 1
+
+
+def test_a_jpeg_tile_is_close_to_the_png(near):
+    _, address = near
+    _, _, png = get(address, "/iiif/0.1,-0.05/full/max/0/default.png")
+    status, headers, jpg = get(address, "/iiif/0.1,-0.05/full/max/0/default.jpg")
+    assert status == 200 and headers["Content-Type"] == "image/jpeg"
+    assert np.abs(decoded(jpg).astype(int) - decoded(png)).mean() < 5  # quality 90: 3.4
+
+
+@pytest.mark.parametrize(("path", "status", "message"), [
+    ("/iiif/0.1/full/max/0/default.png", 400, "light '0.1' must be 2 or 3 finite numbers"),
+    ("/iiif/0.1,inf/info.json", 400, "light '0.1,inf' must be 2 or 3 finite numbers"),
+    ("/iiif/0.1,0;ev=auto/full/max/0/default.png", 400, "which a tile cannot know"),
+    ("/iiif/0.1,0;ev=30/full/max/0/default.png", 400, "ev 30.0 must be a finite number"),
+    ("/iiif/0.1,0;view=0,0/full/max/0/default.png", 400, "it is a 4D LTM"),
+    ("/iiif/0.1,0,-1/full/max/0/default.png", 400, "at or below the horizon"),
+    ("/iiif/0.1,0/40,0,8,8/max/0/default.png", 400, "outside the 32 x 32 image"),
+    ("/iiif/0.1,0/0,0,8,8/9,/0/default.png", 400, "at most the region's 8 x 8 px"),
+    ("/iiif/0.1,0/0,0,8,8/big/0/default.png", 400, "must be max"),
+    ("/iiif/0.1,0/full/max/0/default.bmp", 400, "must be default.png or default.jpg"),
+    ("/iiif/0.1,0/full/^max/0/default.png", 501, "upscaling (^) is not supported"),
+    ("/iiif/0.1,0/full/max/90/default.png", 501, "only 0 is supported"),
+    ("/iiif/0.1,0/full/max/0/gray.png", 501, "only default is supported"),
+    ("/iiif/0.1,0/full/max/0/default.tif", 501, "only png and jpg"),
+    ("/iiif/0.1,0/full/max/0", 404, "not found"),
+    ("/iiif/0.1,0/full/max/0/default.png/more", 404, "not found"),
+])
+def test_bad_requests_are_answered_with_one_line(near, path, status, message):
+    _, address = near
+    got, headers, body = get(address, path)
+    text = body.decode()
+    assert got == status and message in text and "\n" not in text, (got, text)
+
+
+def test_a_far_light_tile_is_ltm_relights_and_outside_the_disk_is_refused(far, far_store):
+    _, address = far
+    whole = cli_image(far_store, "--light", "0.3,0.2")
+    status, _, body = get(address, "/iiif/0.3,0.2/3,2,8,7/max/0/default.png")
+    assert status == 200
+    np.testing.assert_array_equal(decoded(body), whole[2:9, 3:11])
+    status, _, body = get(address, "/iiif/0.9,0.9/info.json")
+    assert status == 400 and b"inside the unit disk" in body
+
+
+def test_other_hosts_are_refused(near):
+    _, address = near
+    status, _, body = get(address, "/iiif/0.1,0/full/max/0/default.png", host="example.com")
+    assert status == 403 and body == b"only local pages"
+
+
+# -- bytes read -----------------------------------------------------------------------------
+
+class ByVariable(CountingStore):
+    """Counts the bytes read per variable (the key's first part)."""
+
+    def __init__(self, store) -> None:
+        super().__init__(store)
+        self.by_variable = collections.Counter()
+
+    async def get(self, key, prototype, byte_range=None):
+        buf = await super().get(key, prototype, byte_range)
+        if buf is not None and not key.endswith("zarr.json"):
+            self.by_variable[key.split("/")[0]] += len(buf)
+        return buf
+
+
+def test_a_tile_reads_only_its_region(small_store, tmp_path):
+    """On a light-major copy written in blocks of 16 x 16 pixels (a small band: the library's
+    own path for big images), a quarter tile reads a quarter of the LTM's bytes the whole
+    image does, and the same values."""
+    store = tmp_path / "blocks.zarr"
+    shutil.copytree(small_store, store)
+    group = zarr.open_group(str(store), mode="r+")
+    names = [n.removesuffix(SUFFIX) for n in group.array_keys() if n.endswith(SUFFIX)]
+    for name in names:
+        lattice = group[name].chunks[2:]
+        write_by_light(group, name, band_bytes=256 * 4 * int(np.prod(lattice)))
+    assert group[by_light_name("ltm")].chunks[:2] == (16, 16)  # (the rewrite is not recorded
+    # in the store's integrity record: opened below through a Zarr store, which skips that check)
+    read = {}
+    for region in [(0, 0, 32, 32), (16, 0, 16, 16)]:
+        counting = ByVariable(zarr.storage.LocalStore(str(store), read_only=True))
+        tiles = RelitTiles(open_store(counting), "srgb")
+        image, _ = tiles.image(LightId(light=NEAR_LIGHT))  # the light's checks: poses only
+        counting.by_variable.clear()
+        values, _ = tiles.linear(LightId(light=NEAR_LIGHT), region, region[2:])
+        read[region] = sum(counting.by_variable[by_light_name(n)] for n in names)
+        x, y, w, h = region
+        np.testing.assert_array_equal(values, image.values[y:y + h, x:x + w])
+    # (the chroma ratios are one 32 x 32 chunk, read whole by both; ltm view holds them)
+    assert 0 < read[(16, 0, 16, 16)] <= read[(0, 0, 32, 32)] / 4 * 1.01, read
