@@ -10,11 +10,13 @@ import json
 import shutil
 import socket
 import tempfile
+import time
 from urllib.parse import urlsplit
 
 import numpy as np
 import pytest
 import zarr
+from browser import OPENLIME_SRC, Browser, openlime_import_map
 from PIL import Image
 from pipeline_helpers import run_ltm, served_view
 
@@ -283,3 +285,102 @@ def test_a_tile_reads_only_its_region(small_store, tmp_path):
         np.testing.assert_array_equal(values, image.values[y:y + h, x:x + w])
     # (the chroma ratios are one 32 x 32 chunk, read whole by both; ltm view holds them)
     assert 0 < read[(16, 0, 16, 16)] <= read[(0, 0, 32, 32)] / 4 * 1.01, read
+
+
+# -- a real viewer --------------------------------------------------------------------------
+
+PAGE = """<!doctype html><html><head><style>
+html, body {{ margin: 0; background: #000 }}
+#lime {{ width: {w}px; height: {h}px; position: relative; overflow: hidden }}
+#lime canvas {{ position: absolute; left: 0; top: 0; width: 100%; height: 100%; display: block }}
+</style><script type="importmap">{imports}</script></head><body><div id="lime"></div>
+<script type="module">
+import {{ Viewer }} from '/openlime/Viewer.js';
+import {{ Layer }} from '/openlime/Layer.js';
+import '/openlime/LayerImage.js';
+import '/openlime/LayoutTiles.js';
+const viewer = new Viewer('#lime', {{ background: 'black',
+                                      canvas: {{ preserveDrawingBuffer: true }} }});
+const layer = new Layer({{ type: 'image', layout: 'iiif', url: '{url}' }});
+viewer.addLayer('image', layer);
+layer.addEvent('ready', () => {{ window.ready = true; }});
+Object.assign(window, {{ viewer, layer }});
+</script></body></html>"""
+
+
+def page_server(folder, view_port: int, seen: list[str]):
+    """Serves ``folder`` (the page, OpenLIME's sources) and passes ``/iiif/`` on to ``ltm
+    view`` on ``view_port`` (one origin for the page and the tiles: ltm view sends no CORS
+    header); the paths passed on are appended to ``seen``."""
+    import urllib.error
+    import urllib.request
+    from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+
+    class Handler(SimpleHTTPRequestHandler):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, directory=str(folder), **kwargs)
+
+        def do_GET(self) -> None:  # noqa: N802
+            if not self.path.startswith(iiif.PREFIX):
+                return super().do_GET()
+            seen.append(self.path)
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{view_port}{self.path}") as r:
+                    status, kind, body = r.status, r.headers["Content-Type"], r.read()
+            except urllib.error.HTTPError as exc:
+                status, kind, body = exc.code, "text/plain", exc.read()
+            self.send_response(status)
+            self.send_header("Content-Type", kind)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args) -> None:
+            pass
+
+    return ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+
+
+def openlime_canvas(browser) -> np.ndarray:
+    """OpenLIME's canvas (y, x, 3) once two frames drawn in a row agree (tiles may load)."""
+    import base64
+
+    last = None
+    for _ in range(100):
+        data = browser.evaluate("viewer.draw(performance.now()), "
+                                "viewer.canvasElement.toDataURL('image/png')")
+        frame = np.asarray(Image.open(io.BytesIO(base64.b64decode(data.split(",", 1)[1])))
+                           .convert("RGB"), float)
+        if last is not None and np.array_equal(frame, last) and frame.any():
+            return frame
+        last = frame
+        time.sleep(0.05)
+    raise AssertionError("OpenLIME's canvas did not settle")
+
+
+@pytest.mark.skipif(not (OPENLIME_SRC / "LayoutTiles.js").is_file(),
+                    reason=f"OpenLIME's sources absent at {OPENLIME_SRC}")
+def test_openlime_draws_the_relit_iiif_tiles(near, small_store, tmp_path):
+    import threading
+
+
+    _, address = near
+    expected = cli_image(small_store, "--light", "0.1,-0.05")
+    h, w = expected.shape[:2]
+    (tmp_path / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
+    (tmp_path / "page.html").write_text(PAGE.format(
+        w=w, h=h, imports=openlime_import_map(), url="/iiif/0.1,-0.05/info.json"))
+    seen: list[str] = []
+    server = page_server(tmp_path, address[1], seen)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        with Browser(64, 64) as browser:
+            browser.goto(f"http://127.0.0.1:{server.server_address[1]}/page.html")
+            browser.wait_for(f"window.ready === true && viewer.canvasElement.width === {w}")
+            shown = openlime_canvas(browser)
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert f"/iiif/0.1,-0.05/0,0,{w},{h}/{w},{h}/0/default.jpg" in seen, seen
+    diff = np.abs(shown - expected)
+    assert diff.mean() < 5 and diff[h // 2, w // 2].max() < 16, (diff.mean(), diff.max())
