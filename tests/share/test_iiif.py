@@ -363,7 +363,6 @@ def openlime_canvas(browser) -> np.ndarray:
 def test_openlime_draws_the_relit_iiif_tiles(near, small_store, tmp_path):
     import threading
 
-
     _, address = near
     expected = cli_image(small_store, "--light", "0.1,-0.05")
     h, w = expected.shape[:2]
