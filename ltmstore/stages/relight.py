@@ -15,7 +15,7 @@ Far-light store (a classic RTI capture, :mod:`ltmstore.stages.reconstruct_far`):
 evaluated by each tile's chosen model straight from the frames (no lattice in between; fitted,
 as there, to the sRGB-encoded colours and decoded to linear light); a
 ``(r, s)`` light is the direction ``(r, s, sqrt(1 - r^2 - s^2))``. Its surface model is
-rendered block by block (the frames' columns by bands of rows of :data:`BAND_BYTES`), as its
+rendered block by block (its stored column chunks by bands of rows of :data:`BAND_BYTES`), as its
 frames are read chunk by chunk: memory follows the block, not the image.
 
 Relit values are linear light at the capture's exposure, never negative (clipped at 0),
@@ -536,13 +536,14 @@ def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
                         blend: surface.Blend, color: bool) -> xr.DataArray:
     """What the surface model adds to its blend's linear image at ``dirs``
     (:meth:`ltmstore.stages.surface.Blend.correction`), sRGB-encoded,
-    ``(light, y, x[, color])``: lazy, one task per block of the frames' columns by a band of
-    rows (:func:`~ltmstore.stages.surface.row_bands` of :data:`BAND_BYTES`), each reading its
+    ``(light, y, x[, color])``: lazy, one task per block of the surface variables' column
+    chunks by a band of rows (:func:`~ltmstore.stages.surface.row_bands` of :data:`BAND_BYTES`), each reading its
     part of the surface variables only (a region of the image, an IIIF tile, computes its own
     columns, not whole rows)."""
     height, width = ds.sizes["y"], ds.sizes["x"]
-    frames = ds[FRAMES]
-    cols = tuple(frames.chunksizes["x"]) if frames.chunks else (width,)
+    stored = ds[surface.SURFACE[0]]  # its column chunks: each is read once, by its blocks
+    source = stored if stored.chunks else ds[FRAMES]  # held in memory: the frames' columns
+    cols = tuple(source.chunksizes["x"]) if source.chunks else (width,)
     rows = tuple(b.stop - b.start for b in surface.row_bands((len(train), height, max(cols)),
                                                                BAND_BYTES))
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE]
