@@ -537,9 +537,9 @@ def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
     """What the surface model adds to its blend's linear image at ``dirs``
     (:meth:`ltmstore.stages.surface.Blend.correction`), sRGB-encoded,
     ``(light, y, x[, color])``: lazy, one task per block of the surface variables' column
-    chunks by a band of rows (:func:`~ltmstore.stages.surface.row_bands` of :data:`BAND_BYTES`), each reading its
-    part of the surface variables only (a region of the image, an IIIF tile, computes its own
-    columns, not whole rows)."""
+    chunks by a band of rows (:func:`~ltmstore.stages.surface.row_bands` of
+    :data:`BAND_BYTES`), each reading its part of the surface variables only (a region of the
+    image, an IIIF tile, computes its own columns, not whole rows)."""
     height, width = ds.sizes["y"], ds.sizes["x"]
     stored = ds[surface.SURFACE[0]]  # its column chunks: each is read once, by its blocks
     source = stored if stored.chunks else ds[FRAMES]  # held in memory: the frames' columns
