@@ -44,6 +44,8 @@ BENCHMARKS = {
                            "relight-cli"),
     "height_peer": Benchmark("height_peer.py", "SynthRTI's given normals integrated: ltm maps "
                              "--height beside relight-normals (BNI, FFT)"),
+    "iiif_tiles": Benchmark("iiif_tiles.py", "ltm view's IIIF tiles: the first relit tile and "
+                            "bytes read, beside ltm relight of the whole image"),
     "rti_peer": Benchmark("rti_peer.py", "classic captures: time to a relightable store, to the "
                           "refined one, held-out PSNR of each beside relight-cli's bases"),
     "rti_scale": Benchmark("rti_scale.py", "classic captures resized to 1-24 MP: time, peak "
