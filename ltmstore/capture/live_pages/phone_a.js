@@ -8,6 +8,8 @@
 // intrinsics): 1280 x 720 is what the tracker is measured at, and a 4K JPEG per frame would
 // cut the update rate several times over for no gain in the drawn path.
 const MAX_SEND_WIDTH = 1280;
+const FRAME_WAIT_MS = 2000;  // a frame's callback awaited this long before trying again
+const POLL_MS = 250;  // without that callback: the current frame drawn this often
 // Where the page keeps the camera picked (a deviceId): the lens the intrinsics were calibrated on.
 const CAMERA_KEY = "ltm.capture.phoneA.camera";
 
@@ -99,15 +101,21 @@ async function switchTorchOn() {
 
 /**
  * Draw the next frame into ``canvas`` and return the time (s, on this page's performance.now()
- * clock) at which it was captured, or null where the video has no size yet. The frame is drawn
- * in its own callback: drawn later, a frame that arrived in between (a loaded machine) was sent
- * with its predecessor's time, one frame interval early.
+ * clock) at which it was captured, or null where the video has no size yet or no frame came
+ * within FRAME_WAIT_MS. The frame is drawn in its own callback: drawn later, a frame that
+ * arrived in between (a loaded machine) was sent with its predecessor's time, one frame
+ * interval early. Where the browser has that callback, a frame is never sent with a guessed
+ * time: without it, the time the page gave up waiting would place a frame that arrived late
+ * (a loaded machine) where the LED was a few hundred ms later. Without the callback, the
+ * current frame is drawn every POLL_MS and timed on arrival.
  */
 function nextFrame(video, canvas) {
+  const callback = Boolean(video.requestVideoFrameCallback);
   return new Promise((resolve) => {
-    const timer = setTimeout(
-      () => resolve(drawFrame(video, canvas) ? performance.now() / 1000 : null), 250);
-    if (video.requestVideoFrameCallback) {
+    const timer = setTimeout(() => resolve(
+      !callback && drawFrame(video, canvas) ? performance.now() / 1000 : null),
+    callback ? FRAME_WAIT_MS : POLL_MS);
+    if (callback) {
       video.requestVideoFrameCallback((now, meta) => {
         clearTimeout(timer);
         const t = meta && Number.isFinite(meta.captureTime) && meta.captureTime <= now &&
