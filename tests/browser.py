@@ -37,6 +37,34 @@ def openlime_import_map() -> str:
     return json.dumps({"imports": {f"/openlime/{n}": f"/openlime/{n}.js" for n in names}})
 
 
+OPENLIME_PAGE = """<!doctype html><html><head><style>
+html, body {{ margin: 0; background: #000 }}
+#lime {{ width: {w}px; height: {h}px; position: relative; overflow: hidden }}
+#lime canvas {{ position: absolute; left: 0; top: 0; width: 100%; height: 100%; display: block }}
+</style><script type="importmap">{imports}</script></head><body><div id="lime"></div>
+<script type="module">
+import {{ Viewer }} from '/openlime/Viewer.js';
+import {{ Layer }} from '/openlime/Layer.js';
+import '/openlime/LayerImage.js';
+import '/openlime/LayerRTI.js';
+import '/openlime/LayoutTiles.js';
+const viewer = new Viewer('#lime', {{ background: 'black',
+                                      canvas: {{ preserveDrawingBuffer: true }} }});
+const layer = new Layer({{ type: '{kind}', layout: '{layout}', url: '{url}' }});
+viewer.addLayer('{kind}', layer);
+layer.addEvent('ready', () => {{ window.ready = true; }});
+Object.assign(window, {{ viewer, layer }});
+</script></body></html>"""
+
+
+def openlime_page(width: int, height: int, kind: str, layout: str, url: str) -> str:
+    """A page that draws one OpenLIME layer (``kind`` ``rti`` or ``image``, its ``layout`` and
+    ``url``) in a ``width`` x ``height`` canvas, as OpenLIME's own viewer does; ``window.ready``
+    once the layer is, ``window.viewer`` and ``window.layer`` for the test."""
+    return OPENLIME_PAGE.format(w=width, h=height, imports=openlime_import_map(), kind=kind,
+                                layout=layout, url=url)
+
+
 def chromium_path() -> str:
     """The Chromium executable. When it is missing: a skip naming it and how to get it, or an
     AssertionError (a failure) where ``LTM_REQUIRE_BROWSER`` is set, as in CI."""

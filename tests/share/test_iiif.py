@@ -16,7 +16,7 @@ from urllib.parse import urlsplit
 import numpy as np
 import pytest
 import zarr
-from browser import OPENLIME_SRC, Browser, openlime_import_map
+from browser import OPENLIME_SRC, Browser, openlime_page
 from PIL import Image
 from pipeline_helpers import run_ltm, served_view
 
@@ -289,23 +289,6 @@ def test_a_tile_reads_only_its_region(small_store, tmp_path):
 
 # -- a real viewer --------------------------------------------------------------------------
 
-PAGE = """<!doctype html><html><head><style>
-html, body {{ margin: 0; background: #000 }}
-#lime {{ width: {w}px; height: {h}px; position: relative; overflow: hidden }}
-#lime canvas {{ position: absolute; left: 0; top: 0; width: 100%; height: 100%; display: block }}
-</style><script type="importmap">{imports}</script></head><body><div id="lime"></div>
-<script type="module">
-import {{ Viewer }} from '/openlime/Viewer.js';
-import {{ Layer }} from '/openlime/Layer.js';
-import '/openlime/LayerImage.js';
-import '/openlime/LayoutTiles.js';
-const viewer = new Viewer('#lime', {{ background: 'black',
-                                      canvas: {{ preserveDrawingBuffer: true }} }});
-const layer = new Layer({{ type: 'image', layout: 'iiif', url: '{url}' }});
-viewer.addLayer('image', layer);
-layer.addEvent('ready', () => {{ window.ready = true; }});
-Object.assign(window, {{ viewer, layer }});
-</script></body></html>"""
 
 
 def page_server(folder, view_port: int, seen: list[str]):
@@ -367,8 +350,8 @@ def test_openlime_draws_the_relit_iiif_tiles(near, small_store, tmp_path):
     expected = cli_image(small_store, "--light", "0.1,-0.05")
     h, w = expected.shape[:2]
     (tmp_path / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
-    (tmp_path / "page.html").write_text(PAGE.format(
-        w=w, h=h, imports=openlime_import_map(), url="/iiif/0.1,-0.05/info.json"))
+    (tmp_path / "page.html").write_text(openlime_page(
+        w, h, "image", "iiif", "/iiif/0.1,-0.05/info.json"))
     seen: list[str] = []
     server = page_server(tmp_path, address[1], seen)
     threading.Thread(target=server.serve_forever, daemon=True).start()

@@ -26,29 +26,12 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 
 import numpy as np
 import pytest
-from browser import OPENLIME_SRC, Browser
+from browser import OPENLIME_SRC, Browser, openlime_page
 from PIL import Image
 from rti_readers import psnr, read_web, reference, relit
 
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.share.export import export
-
-PAGE = """<!doctype html><html><head><style>
-html, body {{ margin: 0; background: #000 }}
-#lime {{ width: {w}px; height: {h}px; position: relative; overflow: hidden }}
-#lime canvas {{ position: absolute; left: 0; top: 0; width: 100%; height: 100%; display: block }}
-</style></head><body><div id="lime"></div><script type="module">
-import {{ Viewer }} from '/openlime/Viewer.js';
-import {{ Layer }} from '/openlime/Layer.js';
-import '/openlime/LayerImage.js';
-import '/openlime/LayerRTI.js';
-const viewer = new Viewer('#lime', {{ background: 'black',
-                                      canvas: {{ preserveDrawingBuffer: true }} }});
-const layer = new Layer({{ type: 'rti', layout: 'image', url: '/web/info.json' }});
-viewer.addLayer('rti', layer);
-layer.addEvent('ready', () => {{ window.ready = true; }});
-Object.assign(window, {{ viewer, layer }});
-</script></body></html>"""
 
 # a frame drawn now, as a PNG data URL: headless Chromium runs requestAnimationFrame (which
 # OpenLIME's redraw waits on) about once a second here, so the test draws synchronously
@@ -108,7 +91,8 @@ LOWEST = {"ptm": (51.5, 33.4), "hsh": (52.0, 35.2), "bilinear": (52.0, 35.4)}
 def test_openlime_renders_the_relight_export(basis, small_store, tmp_path, served):
     report = export(small_store, tmp_path / "web", fmt="relight", basis=basis)
     (tmp_path / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
-    (tmp_path / "page.html").write_text(PAGE.format(w=report["width"], h=report["height"]))
+    (tmp_path / "page.html").write_text(openlime_page(report["width"], report["height"],
+                                                        "rti", "image", "/web/info.json"))
     coef, weights = read_web(tmp_path / "web")
     # test_export's 10 lights inside the plane: their directions, ltmstore.relight there
     dirs, rgb = reference(str(small_store))[:2]

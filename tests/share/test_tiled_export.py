@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import OPENLIME_SRC, Browser, openlime_import_map
+from browser import OPENLIME_SRC, Browser, openlime_page
 from PIL import Image
 from pipeline_helpers import run_ltm
 from rti_readers import psnr, reference
@@ -133,24 +133,6 @@ def test_cli_writes_deepzoom(small_store, tmp_path):
     assert (tmp_path / "w" / "plane_0_files" / "1" / "1_1.jpg").is_file()
 
 
-PAGE = """<!doctype html><html><head><style>
-html, body {{ margin: 0; background: #000 }}
-#lime {{ width: {w}px; height: {h}px; position: relative; overflow: hidden }}
-#lime canvas {{ position: absolute; left: 0; top: 0; width: 100%; height: 100%; display: block }}
-</style><script type="importmap">{imports}</script>
-</head><body><div id="lime"></div><script type="module">
-import {{ Viewer }} from '/openlime/Viewer.js';
-import {{ Layer }} from '/openlime/Layer.js';
-import '/openlime/LayerImage.js';
-import '/openlime/LayerRTI.js';
-import '/openlime/LayoutTiles.js';
-const viewer = new Viewer('#lime', {{ background: 'black',
-                                      canvas: {{ preserveDrawingBuffer: true }} }});
-const layer = new Layer({{ type: 'rti', layout: '{layout}', url: '/{folder}/info.json' }});
-viewer.addLayer('rti', layer);
-layer.addEvent('ready', () => {{ window.ready = true; }});
-Object.assign(window, {{ viewer, layer }});
-</script></body></html>"""
 
 
 
@@ -182,8 +164,8 @@ def test_openlime_draws_the_deepzoom_export(small_store, image_export, tmp_path,
     (tmp_path / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
     size = (report["width"], report["height"])
     for layout, folder in (("image", "image"), ("deepzoom", "dz")):
-        (tmp_path / f"{folder}.html").write_text(PAGE.format(
-            w=size[0], h=size[1], layout=layout, folder=folder, imports=openlime_import_map()))
+        (tmp_path / f"{folder}.html").write_text(openlime_page(
+            size[0], size[1], "rti", layout, f"/{folder}/info.json"))
     dirs = reference(str(small_store))[0]
     with Browser(64, 64) as browser:
         whole = draw(browser, f"{served}/image.html", size, dirs)
