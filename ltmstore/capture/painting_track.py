@@ -346,7 +346,7 @@ class PaintingTracker:
             return FramePose(t, np.full(3, np.nan), 0, np.nan, np.nan, "no_painting")
         r_co, tvec, rms, sigma, n = found
         led, tilt = camera_led(r_co, tvec, self.config.led_offset, normal_sign=-1.0)
-        pose = checked_pose(t, led, n, rms, tilt, self.intr, self.config)
+        pose = checked_pose(t, led, n, rms, tilt, self.intr, self.config, r_co[2])
         if pose.status == "ok" and sigma > MAX_LED_SIGMA_M:
             pose = replace(pose, status="poor_pose")
         if pose.status in ("ok", "tilted"):

@@ -8,7 +8,9 @@ centre, ``z`` the height above the board). Times are the frame timestamps of the
 
 Outputs, so that ``ltm ingest`` takes them unchanged:
 
-* ``poses.csv`` (``t,r,s,z``): one row per frame with a trustworthy pose. Frames without one are
+* ``poses.csv`` (``t,r,s,z,axis_r,axis_s,axis_z``): one row per frame with a trustworthy pose,
+  the LED's position and its axis (the camera's optical axis: the LED beside the lens shines
+  along it; ingest models the beam about it). Frames without one are
   left out, never interpolated here. Frames whose LED is off the plane height are kept: they are
   measurements, and ingest rejects them with its z tolerance.
 * ``<poses>.frames.csv`` beside it: every frame with its status (``ok``, ``no_board``,
@@ -18,7 +20,7 @@ Outputs, so that ``ltm ingest`` takes them unchanged:
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -68,7 +70,9 @@ class TrackConfig:
 
 @dataclass(frozen=True)
 class FramePose:
-    """One frame's result: LED in plane coordinates (NaN when no pose) and diagnostics."""
+    """One frame's result: LED in plane coordinates (NaN when no pose) and diagnostics;
+    ``axis``: the direction the camera, and so the LED beside it, points (unit, plane
+    coordinates; NaN when no pose)."""
 
     t: float
     led: np.ndarray
@@ -76,6 +80,7 @@ class FramePose:
     reprojection_px: float
     tilt_deg: float
     status: str
+    axis: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
 
 def estimate_pose(obj: np.ndarray, img: np.ndarray,
@@ -103,7 +108,8 @@ def estimate_pose(obj: np.ndarray, img: np.ndarray,
 
 def camera_led(r_co: np.ndarray, t: np.ndarray, led_offset,
                normal_sign: float = 1.0) -> tuple[np.ndarray, float]:
-    """LED position in the target's own coordinates and the tilt of the optical axis.
+    """LED position in the target's own coordinates and the tilt of the optical axis
+    (its direction there: ``r_co[2]``, the camera's ``z`` axis, along which the LED shines).
 
     Parameters
     ----------
@@ -127,19 +133,23 @@ def camera_led(r_co: np.ndarray, t: np.ndarray, led_offset,
 
 
 def led_position(spec: BoardSpec, r_cb: np.ndarray, t: np.ndarray,
-                 led_offset) -> tuple[np.ndarray, float]:
-    """LED in plane coordinates and the tilt (degrees) of the optical axis from the normal."""
+                 led_offset) -> tuple[np.ndarray, float, np.ndarray]:
+    """LED in plane coordinates, the tilt (degrees) of the optical axis from the normal and
+    the axis's direction in plane coordinates."""
     led_board, tilt = camera_led(r_cb, t, led_offset)
-    return spec.to_plane(led_board), tilt
+    led = spec.to_plane(led_board)
+    return led, tilt, spec.to_plane(led_board + r_cb[2]) - led
 
 
 def checked_pose(t: float, led: np.ndarray, points: int, rms: float, tilt: float,
-                 intr: Intrinsics, config: TrackConfig) -> FramePose:
+                 intr: Intrinsics, config: TrackConfig,
+                 axis: np.ndarray | None = None) -> FramePose:
     """A frame's pose with its status from the reprojection and tilt limits (``ok``,
     ``poor_pose`` or ``tilted``; ``out_of_plane`` is decided over the whole video)."""
     limit = config.max_reprojection_px * intr.image_size[0] / 1280
     status = "poor_pose" if rms > limit else "tilted" if tilt > config.max_tilt_deg else "ok"
-    return FramePose(t, led, points, rms, tilt, status)
+    return FramePose(t, led, points, rms, tilt, status,
+                     *(() if axis is None else (np.asarray(axis, float),)))
 
 
 def track_frame(detector: BoardDetector, gray: np.ndarray, t: float, intr: Intrinsics,
@@ -153,8 +163,8 @@ def track_frame(detector: BoardDetector, gray: np.ndarray, t: float, intr: Intri
     if pose is None:
         return FramePose(t, nan, len(obj), np.nan, np.nan, "poor_pose")
     r_cb, tvec, rms = pose
-    led, tilt = led_position(detector.spec, r_cb, tvec, config.led_offset)
-    return checked_pose(t, led, len(obj), rms, tilt, intr, config)
+    led, tilt, axis = led_position(detector.spec, r_cb, tvec, config.led_offset)
+    return checked_pose(t, led, len(obj), rms, tilt, intr, config, axis)
 
 
 def check_frame_size(gray: np.ndarray, intr: Intrinsics, what: str) -> None:
@@ -225,11 +235,15 @@ def write_tracks(out: str | os.PathLike, results: list[FramePose], *,
     out = Path(out)
     frames_csv = frames_path(out)
     keep = [r for r in results if r.status in WRITTEN]
-    rows = "".join(f"{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f}\n" for r in keep)
+    with_axis = bool(keep) and all(np.isfinite(r.axis).all() for r in keep)
+    rows = "".join(f"{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f}"
+                   + ("".join(f",{v:.7f}" for v in r.axis) if with_axis else "") + "\n"
+                   for r in keep)
     detail = "".join(f"{i},{r.t:.6f},{r.led[0]:.7f},{r.led[1]:.7f},{r.led[2]:.7f},{r.corners},"
                      f"{r.reprojection_px:.4f},{r.tilt_deg:.3f},{r.status}\n"
                      for i, r in enumerate(results))
-    write_text_atomic(out, "t,r,s,z\n" + rows, what="poses")
+    header = "t,r,s,z" + (",axis_r,axis_s,axis_z" if with_axis else "")
+    write_text_atomic(out, header + "\n" + rows, what="poses")
     write_text_atomic(frames_csv, f"frame,t,r,s,z,{count_column},reprojection_px,tilt_deg,"
                       "status\n" + detail, what="per-frame tracking")
     return {"poses": str(out), "frames_csv": str(frames_csv)}

@@ -64,9 +64,10 @@ def test_led_offset_axes_straight_down(scene):
     """Looking straight down: camera x is +r, camera y (image down) is -s."""
     spec, *_ = scene
     r_cb, t = camera_extrinsics(spec, np.array([0.1, 0.05, 0.3]), DOWN)
-    led, tilt = led_position(spec, r_cb, t, (0.01, 0.02, 0.003))
+    led, tilt, axis = led_position(spec, r_cb, t, (0.01, 0.02, 0.003))
     np.testing.assert_allclose(led, [0.11, 0.03, 0.297], atol=1e-12)
     assert tilt == pytest.approx(0.0, abs=1e-6)
+    np.testing.assert_allclose(axis, [0.0, 0.0, -1.0], atol=1e-12)  # the LED shines down
 
 
 @pytest.mark.parametrize(("led", "yaw", "tilt"), [
@@ -84,6 +85,10 @@ def test_track_frame_is_sub_millimetre(scene, led, yaw, tilt):
     assert pose.tilt_deg == pytest.approx(np.degrees(np.arccos(np.cos(np.radians(tilt))
                                                                * np.cos(np.radians(tilt / 2)))),
                                           abs=0.1)
+    # the LED's axis is the camera's optical axis, in plane coordinates (measured 0.004-0.021
+    # degrees from the true one)
+    off = np.degrees(np.arccos(np.clip(pose.axis @ r_wc[:, 2], -1, 1)))
+    assert off < 0.05, (pose.axis, r_wc[:, 2])
 
 
 def test_flags_tilted_and_boardless_frames(scene):
@@ -118,6 +123,14 @@ def test_out_of_plane_and_files_follow_the_contract(tmp_path):
     assert len(poses) == 8 and not np.isin(7 / 30, poses.t)
     lines = (tmp_path / "poses.frames.csv").read_text().splitlines()
     assert len(lines) == 10 and lines[8].endswith("no_board")
+    assert poses.axis is None  # frames without an axis: the columns are left out
+    # with each frame's LED axis (a tracker's poses), the poses carry it for ingest's beam
+    tilted = np.array([0.05, -0.02, -1.0]) / np.linalg.norm([0.05, -0.02, -1.0])
+    aimed = [FramePose(f.t, f.led, 20, 0.1, 1.0, f.status, tilted if f.status != "no_board"
+                       else np.full(3, np.nan)) for f in flagged]
+    poses = load_poses(write_tracks(tmp_path / "aimed.csv", aimed)["poses"])
+    assert len(poses) == 8
+    np.testing.assert_allclose(poses.axis, np.tile(tilted, (8, 1)), atol=1e-7)
 
 
 def test_track_video_without_board_is_an_error(tmp_path, scene):
