@@ -81,8 +81,10 @@ MAX_DRIFT_STDERR = 0.02
 # frames are not a fixed exposure's.
 MAX_DRIFT_RESIDUAL = 0.05
 # The LED's beam: its exponent is estimated where its standard error is at most this, else the
-# profile's (a phone's flash LED behind its lens: half intensity at 45-60 degrees, k = 1-2.4)
-BEAM_MAX_STDERR = 0.5
+# profile's (a phone's flash LED behind its lens: half intensity at 45-60 degrees, k = 1-2.4).
+# A 720 px simulated canvas without a beam, tracked poses (1.6 degrees of wobble), measured
+# 0.70 +- 0.44: taken as it was (the limit was 0.5), it relit 0.58 dB below k = 0.
+BEAM_MAX_STDERR = 0.25
 BEAM_PROFILE_EXPONENT = 2.0
 BEAM_EXPONENT_RANGE = (0.0, 8.0)  # estimates are clipped to this
 LOCK_ADVICE = ("lock exposure and white balance on camera B (AE/AWB lock) and record again")

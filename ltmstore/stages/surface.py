@@ -485,6 +485,7 @@ LED_EXPONENTS = (0.0, 1.0, 2.0, 3.0, 4.0)
 LED_MARGIN = 0.25  # the default unless clearly worse
 LED_PIXELS = 256
 LED_FOLDS = 5
+LED_SIGNIFICANCE = 2.0  # a wobble's measure this many standard errors above 0 is the default
 
 
 def choose_led_exponent(samples: np.ndarray, geometry: Geometry, *, default: float = 0.0,
@@ -545,7 +546,9 @@ def wobble_exponent(beam: dict) -> float:
     """What the frames measured of the beam's exponent (ingest's ``beam`` record: the mean
     of its per-channel estimates from the axis's wobble, within the grid's range), even where
     too uncertain to be taken as it is; 0 where they measured nothing (no axis columns, or an
-    axis held level).
+    axis held level) or nothing distinguishable from no beam (less than
+    :data:`LED_SIGNIFICANCE` standard errors above 0: a beam-free canvas tracked from the
+    painting measured 0.70 +- 0.44).
 
     The wobble compares a pixel with itself under the beam tilted a few degrees, so it does
     not see the surface's reflectance, which the held-out choice confounds with the beam
@@ -554,7 +557,7 @@ def wobble_exponent(beam: dict) -> float:
     2.35 +- 0.73, where the held-out error alone preferred k = 3 (5 % below k = 2.5), which
     relit 1.15 dB below k = 2 (20.29 against 21.44 dB SNR_Y); the capture without a beam
     measured 0.28 +- 0.54."""
-    estimates = beam.get("exponent_rgb")
-    if not estimates or not beam.get("stderr"):
+    estimates, stderr = beam.get("exponent_rgb"), beam.get("stderr")
+    if not estimates or not stderr or np.mean(estimates) < LED_SIGNIFICANCE * stderr:
         return 0.0
     return float(np.clip(np.mean(estimates), min(LED_EXPONENTS), max(LED_EXPONENTS)))

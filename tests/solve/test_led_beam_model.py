@@ -85,10 +85,14 @@ def test_without_a_beam_the_choice_costs_nothing(size):
     ({"exponent": 2.0, "source": "profile", "stderr": 0.0, "exponent_rgb": [0.0, 0.0, 0.0]}, 0.0),
     ({"exponent": 2.0, "source": "profile", "stderr": None, "exponent_rgb": None}, 0.0),
     ({"exponent": 2.0, "source": "profile", "stderr": 3.1, "exponent_rgb": [9.0, 7.5, 8.0]}, 4.0),
+    # a beam-free canvas tracked from the painting: 1.6 standard errors above 0, no beam
+    ({"exponent": 2.0, "source": "profile", "stderr": 0.44, "exponent_rgb": [0.52, 0.73, 0.85]},
+     0.0),
     ({}, 0.0),
 ])
 def test_the_wobbles_measure_is_the_default(beam, expected):
-    """What ingest measured from the axis's wobble, however uncertain; nothing measured: 0."""
+    """What ingest measured from the axis's wobble, however uncertain, where it stands two
+    standard errors above no beam; else, or nothing measured: 0."""
     assert wobble_exponent(beam) == pytest.approx(expected, abs=1e-4)
 
 
