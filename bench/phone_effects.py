@@ -130,7 +130,8 @@ def track(acq: Path, sim: dict, tracking: str, has_painting: bool,
 
 
 def sync(acq: Path, sim: dict) -> dict:
-    ok, _, err = ltm("sync", acq)
+    # a capture reused from an earlier run (--reuse) already holds that run's offset
+    ok, _, err = ltm("sync", acq, *(["--overwrite"] if sim.get("reused") else []))
     if not ok:
         return {"ok": False, "error": err}
     meta = json.loads((acq / "acquisition.json").read_text())

@@ -118,9 +118,11 @@ def register_maps(sub) -> None:
     p.add_argument("--mesh", action="store_true",
                    help="also write the height as height.ply and height.obj meshes in mm "
                    "(needs --pixel-size or --object-width; implies --height)")
-    p.add_argument("--integration", default="poisson", choices=("poisson", "fc"),
+    p.add_argument("--integration", default="poisson", choices=("poisson", "fc", "bilateral"),
                    help="poisson: least squares (DCT); fc: Frankot-Chellappa (Fourier, mirror "
-                   "padding) (default: %(default)s)")
+                   "padding); bilateral: bilateral normal integration, which keeps a relief's "
+                   "occluding edges as steps (iterative, hundreds of times slower) (default: "
+                   "%(default)s)")
     scale = p.add_mutually_exclusive_group()
     scale.add_argument("--pixel-size", type=number, default=None, metavar="MM",
                        help="the size of a pixel on the object, mm")

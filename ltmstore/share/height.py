@@ -10,7 +10,12 @@ pixels per pixel. Two well-kept integrations of that gradient field:
   periodic transform sees no jump at the borders);
 * ``"poisson"`` (the default): the least-squares height of the forward differences (the
   discrete Poisson equation with Neumann borders), solved exactly with the DCT (Simchony,
-  Chellappa and Shao 1990).
+  Chellappa and Shao 1990);
+* ``"bilateral"``: bilateral normal integration (Cao, Ishikawa and Matsushita 2022, the
+  orthographic case): each pixel's height difference to its left and right (upper and lower)
+  neighbour is weighted by which of the two is smoother, so that a step (a relief's occluding
+  edge) is not spread over its neighbours as least squares spreads it; iteratively reweighted
+  least squares from the ``poisson`` height, each step a conjugate-gradient solve.
 
 Both leave one unknown, the height's offset: the maps put the lowest point at 0. Normals that
 are not finite (a tile that chose another method) count as facing the camera; ``nz`` is kept at
@@ -27,7 +32,7 @@ from scipy import fft
 
 from ltmstore.core.errors import LtmError
 
-INTEGRATIONS = ("poisson", "fc")
+INTEGRATIONS = ("poisson", "fc", "bilateral")
 DEFAULT_INTEGRATION = "poisson"
 MIN_NZ = 0.05
 MESH_VERTICES = 1_000_000  # the default mesh step keeps at most about this many vertices
@@ -84,6 +89,99 @@ def poisson(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
     return fft.idctn(z, type=2, norm="ortho")
 
 
+# Bilateral integration: the sigmoid's sharpness (the paper's k = 2), the iterations and the
+# relative change of the energy at which they stop, and the conjugate gradient's tolerance.
+BILATERAL_K = 2.0
+BILATERAL_ITERATIONS = 20
+BILATERAL_TOL = 1e-4
+BILATERAL_CG_TOL = 1e-3
+
+
+def _one_sided(shape: tuple[int, int], nz: np.ndarray):
+    """The four one-sided differences ``nz (z[next] - z)`` as sparse ``(N, N)`` operators on
+    the flattened ``(H, W)`` grid: right, left, down, up (a row of zeros where the neighbour
+    lies outside the image)."""
+    from scipy import sparse
+
+    h, w = shape
+    index = np.arange(h * w).reshape(h, w)
+    weight = nz.ravel()
+    ops = []
+    for axis, step in ((1, 1), (1, -1), (0, 1), (0, -1)):
+        has = np.zeros((h, w), bool)
+        inner = [slice(None), slice(None)]
+        inner[axis] = slice(0, -1) if step > 0 else slice(1, None)
+        has[tuple(inner)] = True
+        here = index[has]
+        there = here + step * (w if axis == 0 else 1)
+        sign = float(step)  # left and up: z - z[previous]
+        rows = np.concatenate([here, here])
+        cols = np.concatenate([there, here])
+        vals = np.concatenate([sign * weight[here], -sign * weight[here]])
+        ops.append(sparse.csr_matrix((vals, (rows, cols)), shape=(h * w, h * w)))
+    return ops
+
+
+def _neumann_inverse(shape: tuple[int, int]):
+    """The inverse of the grid's Neumann Laplacian (constants kept as they are), applied to a
+    flattened ``(H, W)`` field by the DCT: the preconditioner of the weighted Laplacians that
+    :func:`bilateral` solves (the same operator with weights between 0 and 1)."""
+    h, w = shape
+    eig = (2 - 2 * np.cos(np.pi * np.arange(h) / h))[:, None] + \
+        (2 - 2 * np.cos(np.pi * np.arange(w) / w))[None, :]
+    eig[0, 0] = 1.0
+
+    def apply(r: np.ndarray) -> np.ndarray:
+        return fft.idctn(fft.dctn(r.reshape(h, w), type=2, norm="ortho") / eig, type=2,
+                         norm="ortho").ravel()
+    return apply
+
+
+def bilateral(gx: np.ndarray, gy: np.ndarray, nz: np.ndarray) -> np.ndarray:
+    """The bilateral normal integration (see the module docstring) of the gradients ``gx``
+    (along columns) and ``gy`` (down rows) of normals whose ``z`` component is ``nz``. Mean
+    zero."""
+    from scipy import sparse
+    from scipy.sparse.linalg import LinearOperator, cg
+
+    right, left, down, up = _one_sided(gx.shape, nz)
+    inverse = _neumann_inverse(gx.shape)
+    a = sparse.vstack([right, left, down, up]).tocsr()
+    bu, bv = (nz * gx).ravel(), (nz * gy).ravel()
+    b = np.concatenate([bu, bu, bv, bv])
+    z = poisson(gx, gy).ravel()
+    weights = np.full(len(b), 0.5)
+
+    def energy(z: np.ndarray) -> float:
+        r = a @ z - b
+        return float(weights @ (r * r))
+
+    def sigmoid(x: np.ndarray) -> np.ndarray:
+        return 0.5 * (1 + np.tanh(0.5 * BILATERAL_K * x))
+
+    rows, cols = np.indices(gx.shape)
+    last_col, last_row = (cols == gx.shape[1] - 1).ravel(), (rows == gx.shape[0] - 1).ravel()
+    first_col, first_row = (cols == 0).ravel(), (rows == 0).ravel()
+    previous = energy(z)
+    for _ in range(BILATERAL_ITERATIONS):
+        du, dv = right @ z, down @ z
+        wu = sigmoid((left @ z) ** 2 - du**2)  # the smoother side weighs more
+        wv = sigmoid((up @ z) ** 2 - dv**2)
+        wu[last_col], wu[first_col] = 0.0, 1.0  # at the border, the one neighbour there is
+        wv[last_row], wv[first_row] = 0.0, 1.0
+        weights = np.concatenate([wu, 1 - wu, wv, 1 - wv])
+        normal = (a.T @ sparse.diags(weights) @ a).tocsr()
+        rhs = a.T @ (weights * b)
+        z, _ = cg(normal, rhs, x0=z, rtol=BILATERAL_CG_TOL,
+                  M=LinearOperator(normal.shape, matvec=inverse, dtype=np.float64))
+        current = energy(z)
+        if abs(previous - current) <= BILATERAL_TOL * max(previous, 1e-30):
+            break
+        previous = current
+    height = z.reshape(gx.shape)
+    return height - height.mean()
+
+
 def integrate(normal: np.ndarray, method: str = DEFAULT_INTEGRATION) -> np.ndarray:
     """The height map of unit normals ``(H, W, 3)``, in pixels, lowest point 0.
 
@@ -91,8 +189,9 @@ def integrate(normal: np.ndarray, method: str = DEFAULT_INTEGRATION) -> np.ndarr
     ----------
     normal : ndarray, shape (H, W, 3)
         Unit normals, x right, y up, z towards the camera.
-    method : {"poisson", "fc"}
-        Least squares with the DCT, or Frankot-Chellappa with mirror padding.
+    method : {"poisson", "fc", "bilateral"}
+        Least squares with the DCT, Frankot-Chellappa with mirror padding, or bilateral normal
+        integration.
 
     Returns
     -------
@@ -101,7 +200,12 @@ def integrate(normal: np.ndarray, method: str = DEFAULT_INTEGRATION) -> np.ndarr
     if method not in INTEGRATIONS:
         raise LtmError(f"integration {method!r} must be one of {', '.join(INTEGRATIONS)}")
     gx, gy = gradients(normal)
-    height = (poisson if method == "poisson" else frankot_chellappa)(gx, gy)
+    if method == "bilateral":
+        n = np.asarray(normal, dtype=np.float64)
+        nz = np.where(np.isfinite(n).all(axis=-1), np.maximum(n[..., 2], MIN_NZ), 1.0)
+        height = bilateral(gx, gy, nz)
+    else:
+        height = (poisson if method == "poisson" else frankot_chellappa)(gx, gy)
     return height - height.min()
 
 
