@@ -91,6 +91,13 @@ TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at
 # A lattice given by the user that leaves K/M below this is refused unless forced: the solve
 # grows with M while all but a few cells are guessed (1000 x 1000 on a test capture: K/M 0.0003).
 MIN_RATIO = 0.02
+# A pixel's light transport is capped at this many times the brightest it was seen: a model may
+# put a highlight where no frame came near, but not one the data cannot bound. On 720 px
+# simulated captures the truth's peak over all cells was at most 2.8 (relief) and 8.6 (canvas,
+# its varnish) times the pixel's brightest sample; a relief's physical fit with a lobe of
+# roughness 0.025 fitted to a highlight's flank put 145 times it in an unobserved cell (SNR_Y
+# 2.2 dB over the whole image).
+EXTRAPOLATION_CAP = 10.0
 
 
 def choose_lattice(plane: Plane, r: np.ndarray, s: np.ndarray, valid: np.ndarray, *,
@@ -173,7 +180,7 @@ def _solve_tile(samples: np.ndarray, index: tuple[int, int], origin: tuple[int, 
         _write_surface_tile(out, surface, (slice(y0, y1), slice(x0, x1)), tile)
     error = None
     if EXPECTED_ERROR in out:  # the luminance pass also maps the confidence
-        estimate = np.maximum(estimate, 0)  # light transport is never negative (Cb, Cr may be)
+        estimate = capped(np.maximum(estimate, 0), batch)  # never negative (Cb, Cr may be)
         out[UNSUPPORTED][y0:y1, x0:x1] = flag_unsupported(batch, geometry).reshape(tile)
         error = expected_error(batch, geometry, method, params=choice.params, folds=1,
                                per_pixel=warm)
@@ -199,6 +206,16 @@ def _solve_tile(samples: np.ndarray, index: tuple[int, int], origin: tuple[int, 
     out[TILES][ty, tx] = json.dumps(record, default=float)  # the tile is done: written last
     memory.trim()  # the tile's temporaries leave the worker's heap
     return record
+
+
+def capped(estimate: np.ndarray, batch: np.ndarray) -> np.ndarray:
+    """``estimate`` at most :data:`EXTRAPOLATION_CAP` times each pixel's brightest observed
+    sample (rows of ``batch``; a pixel observed nowhere is left as it is)."""
+    flat = batch.reshape(len(batch), -1)
+    seen = np.isfinite(flat).any(axis=1)
+    ceiling = np.full(len(batch), np.inf, dtype=np.float32)
+    ceiling[seen] = EXTRAPOLATION_CAP * np.nanmax(flat[seen], axis=1)
+    return np.minimum(estimate, ceiling.reshape(-1, *([1] * (estimate.ndim - 1))))
 
 
 def _check_finite(estimate: np.ndarray, batch: np.ndarray, ty: int, tx: int) -> None:
