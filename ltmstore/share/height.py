@@ -81,10 +81,7 @@ def poisson(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
     ey = np.zeros((h + 1, w))
     ey[1:h] = 0.5 * (gy[1:] + gy[:-1])
     rhs = (ex[:, :-1] - ex[:, 1:]) + (ey[:-1] - ey[1:])  # D^T g
-    eig = (2 - 2 * np.cos(np.pi * np.arange(h) / h))[:, None] + \
-        (2 - 2 * np.cos(np.pi * np.arange(w) / w))[None, :]
-    eig[0, 0] = 1.0
-    z = fft.dctn(rhs, type=2, norm="ortho") / eig
+    z = fft.dctn(rhs, type=2, norm="ortho") / _neumann_eigenvalues((h, w))
     z[0, 0] = 0.0
     return fft.idctn(z, type=2, norm="ortho")
 
@@ -122,14 +119,22 @@ def _one_sided(shape: tuple[int, int], nz: np.ndarray):
     return ops
 
 
+def _neumann_eigenvalues(shape: tuple[int, int]) -> np.ndarray:
+    """The eigenvalues ``(H, W)`` of the grid's Neumann Laplacian on the DCT-II basis, the
+    constant's set to 1 (it is left as it is)."""
+    h, w = shape
+    eig = (2 - 2 * np.cos(np.pi * np.arange(h) / h))[:, None] + \
+        (2 - 2 * np.cos(np.pi * np.arange(w) / w))[None, :]
+    eig[0, 0] = 1.0
+    return eig
+
+
 def _neumann_inverse(shape: tuple[int, int]):
     """The inverse of the grid's Neumann Laplacian (constants kept as they are), applied to a
     flattened ``(H, W)`` field by the DCT: the preconditioner of the weighted Laplacians that
     :func:`bilateral` solves (the same operator with weights between 0 and 1)."""
     h, w = shape
-    eig = (2 - 2 * np.cos(np.pi * np.arange(h) / h))[:, None] + \
-        (2 - 2 * np.cos(np.pi * np.arange(w) / w))[None, :]
-    eig[0, 0] = 1.0
+    eig = _neumann_eigenvalues(shape)
 
     def apply(r: np.ndarray) -> np.ndarray:
         return fft.idctn(fft.dctn(r.reshape(h, w), type=2, norm="ortho") / eig, type=2,
