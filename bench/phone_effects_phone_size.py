@@ -123,7 +123,14 @@ def reuse(acq: Path, capture: str) -> dict | None:
             "reused": True}
 
 
-def simulate(acq: Path, scene: str, capture: str, args) -> dict:
+def scene_and_shading(label: str) -> tuple[str, str]:
+    """``canvas`` -> ``("canvas", "ggx")``; ``canvas-mismatched`` -> ``("canvas",
+    "mismatched")``: a scene label of ``--scenes`` and the physics it is rendered with."""
+    scene, _, shading = label.partition("-")
+    return scene, shading or "ggx"
+
+
+def simulate(acq: Path, label: str, capture: str, args) -> dict:
     """The raw capture (camera B ``args.size`` px) and the seconds it took."""
     from ltmstore.synthetic.raw import PhoneCamera, simulate_raw
 
@@ -133,10 +140,11 @@ def simulate(acq: Path, scene: str, capture: str, args) -> dict:
     start = time.perf_counter()
     w, h = args.phone_size
     camera = PhoneCamera(size=(w, h), focal_px=LENSES[args.lens] * w / 1280)
+    scene, shading = scene_and_shading(label)
     sim = simulate_raw(acq, scene=scene, path_density=args.path_density, seed=args.seed,
                        size=args.size, lattice=tuple(args.lattice), camera=camera,
                        calibration_views=args.calibration_views, overwrite=True,
-                       progress=False, board=False, effects=CAPTURES[capture])
+                       progress=False, board=False, effects=CAPTURES[capture], shading=shading)
     sim["simulate_s"] = time.perf_counter() - start
     return sim
 
@@ -298,7 +306,8 @@ def run_capture(work: Path, scene: str, capture: str, args) -> dict:
         oracle_truth = truth
         if capture != "distortion":
             ideal_info = json.loads((ideal / "truth" / "raw.json").read_text())
-            row["oracle_rewrite"] = beam_oracle(folder, acq, scene, ideal_info["exposure"], args)
+            row["oracle_rewrite"] = beam_oracle(folder, acq, scene_and_shading(scene)[0],
+                                                ideal_info["exposure"], args)
             oracle_truth = ideal / "truth.zarr"
         row["oracle"] = {"what": ORACLE[capture],
                          **measure(folder, oracle_truth, lattice, args.color)}
@@ -474,7 +483,9 @@ def main() -> None:
     parser.add_argument("--work", required=True, help="work folder (kept: captures, parts)")
     parser.add_argument("--out", default="bench/results")
     parser.add_argument("--merge", action="store_true", help="gather the parts, write JSON+PNG")
-    parser.add_argument("--scenes", nargs="+", default=["canvas"])
+    parser.add_argument("--scenes", nargs="+", default=["canvas"],
+                        help="scenes; SCENE-mismatched renders it with physics the product does "
+                        "not assume (ltmstore.synthetic.render.MISMATCHED)")
     parser.add_argument("--captures", nargs="+", default=ORDER, choices=ORDER)
     parser.add_argument("--size", type=int, default=720, help="camera B side, pixels")
     parser.add_argument("--phone-size", type=int, nargs=2, default=[1280, 720])

@@ -11,7 +11,7 @@ frames are exactly :func:`ltmstore.synthetic.simulate.video_frames`.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -28,7 +28,7 @@ from ltmstore.synthetic.phone_effects import (
     led_profile,
     white_balance,
 )
-from ltmstore.synthetic.render import _Renderer
+from ltmstore.synthetic.render import GGX, Shading, _Renderer
 from ltmstore.synthetic.simulate import SimulationPlan, _sensor
 from ltmstore.synthetic.writer import FPS
 
@@ -54,11 +54,13 @@ def ambient_term(plan: SimulationPlan, exposure: float) -> np.ndarray:
 
 
 def camera_b_frames(plan: SimulationPlan, timeline: CameraBTimeline, *, exposure: float,
-                    effects: PhoneEffects, records: list) -> Iterator[np.ndarray]:
-    """Yield camera B's frames ``(h, w, 3)`` sRGB uint8; append ``(gain, wb_r, wb_g, wb_b)``
-    per frame to ``records``."""
+                    effects: PhoneEffects, records: list,
+                    shading: Shading = GGX) -> Iterator[np.ndarray]:
+    """Yield camera B's frames ``(h, w, 3)`` sRGB uint8 of the painting shaded by ``shading``
+    (its LED exponent ignored: the beam is the ``led-falloff`` effect); append ``(gain, wb_r,
+    wb_g, wb_b)`` per frame to ``records``."""
     rng = np.random.default_rng([plan.seed, 303])
-    renderer = _Renderer(plan.scene)
+    renderer = _Renderer(plan.scene, shading=replace(shading, led_exponent=0.0))
     h, w = plan.scene.shape
     ambient = ambient_term(plan, exposure) if "ambient" in effects else None
     maps = distortion_maps(camera_b_matrix((w, h)), DISTORTION_B, (w, h)) \

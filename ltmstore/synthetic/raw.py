@@ -43,7 +43,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -75,7 +75,7 @@ from ltmstore.synthetic.phone_effects import (
     parse_effects,
 )
 from ltmstore.synthetic.phone_view import LedLighting, PhoneView, PlaneTexture, wall_with_painting
-from ltmstore.synthetic.render import GGX, Shading, render_ltm
+from ltmstore.synthetic.render import GGX, MISMATCHED, Shading, render_ltm
 from ltmstore.synthetic.scenes import SCENES, Scene, scene_albedo
 from ltmstore.synthetic.simulate import (
     DEFAULT_PATH_DENSITY,
@@ -88,6 +88,8 @@ from ltmstore.synthetic.simulate import (
 
 CAMERA_SIZE = (1280, 720)
 FOCAL_PX = 1000.0  # at 1280 px wide: a 65 degree horizontal field of view
+# The painting's physics (simulate_raw's shading): the product's own, or one it does not assume
+RAW_SHADINGS = {"ggx": GGX, "mismatched": MISMATCHED}
 LED_OFFSET = (0.012, 0.0, 0.0)  # metres, camera axes
 BOARD_PAPER = "A0"  # 1189 x 841 mm: the camera sees the board everywhere over the 40 cm plane
 BOARD_SQUARE_MM = 30.0
@@ -305,7 +307,8 @@ def simulate_raw(out: str | os.PathLike, *, scene: str = "canvas",
                  lattice: tuple[int, int] = (32, 32), camera: PhoneCamera | None = None,
                  time_offset: float | None = None, calibration_views: int = CALIBRATION_VIEWS,
                  truth: bool = True, overwrite: bool = False, progress: bool = True,
-                 board: bool = False, effects: str | PhoneEffects | None = "all") -> dict:
+                 board: bool = False, effects: str | PhoneEffects | None = "all",
+                 shading: str = "ggx") -> dict:
     """Simulate a raw two-phone capture (see the module docstring).
 
     Parameters
@@ -332,6 +335,10 @@ def simulate_raw(out: str | os.PathLike, *, scene: str = "canvas",
     effects : str or PhoneEffects
         ``"all"`` (default), ``"none"`` or a comma list of
         :data:`~ltmstore.synthetic.phone_effects.EFFECTS`.
+    shading : {"ggx", "mismatched"}
+        The painting's physics: the renderer's own (GGX, what the product's physical model
+        assumes), or :data:`~ltmstore.synthetic.render.MISMATCHED`'s (a Beckmann lobe, a 2 %
+        floor, a clear coat) with the LED's beam left to ``effects``.
 
     Returns
     -------
@@ -347,7 +354,10 @@ def simulate_raw(out: str | os.PathLike, *, scene: str = "canvas",
         rng = np.random.default_rng([seed, 808])
         time_offset = float(rng.choice([-1, 1]) * rng.uniform(*OFFSET_RANGE))
     folder = writer.prepare_folder(Path(out), OUTPUTS, overwrite=overwrite)
-    setup = RawSetup(plan, camera, fx, board, float(time_offset), calibration_views, progress)
+    if shading not in RAW_SHADINGS:
+        raise LtmError(f"shading {shading!r} must be one of {', '.join(RAW_SHADINGS)}")
+    setup = RawSetup(plan, camera, fx, board, float(time_offset), calibration_views, progress,
+                     RAW_SHADINGS[shading])
     try:
         return _execute(setup, folder, truth)
     except OSError as exc:
@@ -366,6 +376,7 @@ class RawSetup:
     offset: float
     calibration_views: int
     progress: bool
+    shading: Shading = GGX  # the painting's physics (the LED's beam is an effect)
 
     @property
     def dist_a(self) -> tuple[float, float]:
@@ -415,7 +426,7 @@ def _execute(setup: RawSetup, folder: Path, truth: bool) -> dict:
     boards = _write_boards(setup, folder)
     times_a, line = setup.timeline()
     _write_phone_a(setup, folder, boards["a"], times_a)
-    shading = Shading(led_exponent=LED_EXPONENT) if "led-falloff" in fx else GGX
+    shading = replace(setup.shading, led_exponent=LED_EXPONENT if "led-falloff" in fx else 0.0)
     ltm = render_ltm(plan.scene, plan.lattice, plan.plane.height, progress=setup.progress,
                      shading=shading)
     exposure = EXPOSURE_PEAK / float(ltm.max())
@@ -539,7 +550,8 @@ def _write_camera_b(setup: RawSetup, folder: Path, spec_b: BoardSpec, line: Came
         .write(folder / "truth" / "intrinsics_b.json")
     records: list = []
     frames = tqdm(camera_b_frames(plan, line, exposure=exposure, effects=setup.effects,
-                                  records=records), total=len(line.times),
+                                  records=records, shading=setup.shading),
+                  total=len(line.times),
                   disable=not setup.progress, desc="phone B", unit="frame")
     n = _write(setup, folder / ("video" + setup.ext()), frames, (w, h))
     t = line.times - line.times[0]
@@ -559,6 +571,7 @@ def _raw_info(setup: RawSetup, n: int, exposure: float, km: float) -> dict:
                          "dist_coeffs": [*setup.dist_b, 0, 0, 0],
                          "drift": "truth/camera_b.csv"},
             "fps": writer.FPS, "frames": n, "scene": plan.scene.name, "seed": plan.seed,
+            "shading": next(k for k, v in RAW_SHADINGS.items() if v == setup.shading),
             "exposure": exposure, "sampling_ratio": km, "lattice": list(plan.lattice.shape),
             "board": "board.json", "tracking": "board" if setup.board else "painting",
             "painting_width_m": setup.painting_width, "led_off_lead_s": setup.effects.lead_s,
