@@ -149,7 +149,7 @@ def checked_pose(t: float, led: np.ndarray, points: int, rms: float, tilt: float
     limit = config.max_reprojection_px * intr.image_size[0] / 1280
     status = "poor_pose" if rms > limit else "tilted" if tilt > config.max_tilt_deg else "ok"
     return FramePose(t, led, points, rms, tilt, status,
-                     *(() if axis is None else (np.asarray(axis, float),)))
+                     np.full(3, np.nan) if axis is None else np.asarray(axis, float))
 
 
 def track_frame(detector: BoardDetector, gray: np.ndarray, t: float, intr: Intrinsics,
