@@ -8,6 +8,14 @@ import shutil
 import tempfile
 
 import pytest
+from threadpoolctl import threadpool_limits
+
+# Two xdist workers share two cores: one BLAS/OpenMP thread each (one A/B run: 30 s of 11 min). The
+# plugins have loaded NumPy's BLAS already, hence threadpoolctl; the variables reach libraries
+# loaded later and every subprocess.
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+threadpool_limits(1)
 
 _PREFECT_HOME = tempfile.mkdtemp(prefix="ltm-prefect-")
 atexit.register(shutil.rmtree, _PREFECT_HOME, ignore_errors=True)  # each run left one behind

@@ -11,6 +11,9 @@ from __future__ import annotations
 # ltmstore.synthetic.scenes.SCENES
 SCENES = ("canvas", "icon", "relief")
 
+# ltmstore.synthetic.raw.SHADING_NAMES
+SHADINGS = ("ggx", "mismatched")
+
 # the keys of ltmstore.solve.METHODS and ltmstore.solve.DEFAULT_METHOD
 METHOD_NAMES = ("blend", "cs", "cubic", "hsh", "kernel", "lars", "omp", "physical", "ptm", "rbf",
                 "svt")
@@ -45,6 +48,7 @@ TILE_SIZE = 256
 # the names above, each with the library module and name it copies (for the test)
 ORIGINALS = {
     "SCENES": ("ltmstore.synthetic.scenes", "SCENES"),
+    "SHADINGS": ("ltmstore.synthetic.raw", "SHADING_NAMES"),
     "DEFAULT_METHOD": ("ltmstore.solve", "DEFAULT_METHOD"),
     "TARGET_RATIO": ("ltmstore.stages.reconstruct", "TARGET_RATIO"),
     "MIN_RATIO": ("ltmstore.stages.reconstruct", "MIN_RATIO"),

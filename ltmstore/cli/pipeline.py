@@ -17,6 +17,7 @@ from ltmstore.cli.names import (
     METHOD_NAMES,
     MIN_RATIO,
     SCENES,
+    SHADINGS,
     TARGET_RATIO,
 )
 from ltmstore.core.errors import LtmError, LtmWarning
@@ -76,6 +77,10 @@ def register(sub) -> None:
                    help="with --raw: phone effects at typical strength (default: all), none, or "
                    "a comma list of distortion, rolling-shutter, motion-blur, auto-exposure, "
                    "white-balance, ambient, led-falloff, h264")
+    p.add_argument("--shading", default=None, choices=SHADINGS,
+                   help="with --raw: the painting's physics, ggx (the renderer's own, what "
+                   "the product's physical model assumes; the default) or mismatched (a "
+                   "Beckmann lobe, a 2%% floor and a clear coat, which it does not)")
     p.add_argument("--size", type=int, default=128, help="image side in pixels")
     p.add_argument("--6d", dest="six_d", action="store_true",
                    help="6D: camera B moves over a view plane too (view_plane, p, q poses, "
@@ -290,8 +295,10 @@ def cmd_demo(a: argparse.Namespace) -> None:
 def cmd_simulate(a: argparse.Namespace) -> None:
     if getattr(a, "raw", False):
         return cmd_simulate_raw(a)
-    if getattr(a, "board", False) or getattr(a, "effects", None) is not None:
-        raise LtmError("--board and --effects describe a two-phone capture; they need --raw")
+    if (getattr(a, "board", False) or getattr(a, "effects", None) is not None
+            or getattr(a, "shading", None) is not None):
+        raise LtmError("--board, --effects and --shading describe a two-phone capture; "
+                       "they need --raw")
     from ltmstore.synthetic.simulate import simulate_acquisition
 
     density = {} if a.path_density is None else {"path_density": a.path_density}
@@ -313,7 +320,8 @@ def cmd_simulate_raw(a: argparse.Namespace) -> None:
     density = {} if a.path_density is None else {"path_density": a.path_density}
     check_simulation_folder(a.out, a.overwrite)  # never a folder of someone else's files
     print_json(simulate_raw(a.out, scene=a.scene, seed=a.seed, size=a.size,
-                            overwrite=a.overwrite, board=a.board, effects=effects, **density))
+                            overwrite=a.overwrite, board=a.board, effects=effects,
+                            shading=a.shading or "ggx", **density))
 
 
 def cmd_ingest(a: argparse.Namespace) -> None:

@@ -70,14 +70,22 @@ class TileRequest:
     fmt: str
 
 
-def _numbers(text: str, what: str, counts: tuple[int, ...]) -> tuple[float, ...]:
+def finite_numbers(text: str, what: str, counts: tuple[int, ...]) -> tuple[float, ...]:
+    """The comma-separated finite numbers of ``text``, as many as one of ``counts``.
+
+    Raises
+    ------
+    LtmError
+        Naming ``what`` and ``text`` when they are not numbers, not finite or not as many.
+    """
     try:
         values = tuple(float(t) for t in text.split(","))
     except ValueError:
         values = ()
     if len(values) not in counts or not all(math.isfinite(v) for v in values):
-        raise LtmError(f"{what} {text!r} must be {' or '.join(map(str, counts))} finite numbers "
-                       "separated by commas")
+        many = " or ".join(map(str, counts))
+        plural = "numbers separated by commas" if counts != (1,) else "number"
+        raise LtmError(f"{what} {text!r} must be {many} finite {plural}")
     return values
 
 
@@ -90,7 +98,7 @@ def parse_light(text: str) -> LightId:
         A malformed identifier, an unknown option, ``ev`` out of range or ``auto``.
     """
     head, *options = text.split(";")
-    values = _numbers(head, "light", (2, 3))
+    values = finite_numbers(head, "light", (2, 3))
     ev, view = 0.0, None
     for option in options:
         key, _, value = option.partition("=")
@@ -98,9 +106,9 @@ def parse_light(text: str) -> LightId:
             raise LtmError("ev=auto scales by the whole image's brightest pixels, which a tile "
                            "cannot know; give stops (ev=E)")
         if key == "ev":
-            ev = check_exposure(CAPTURE, _numbers(value, "ev", (1,))[0])[1]
+            ev = check_exposure(CAPTURE, finite_numbers(value, "ev", (1,))[0])[1]
         elif key == "view":
-            view = _numbers(value, "view", (2,))
+            view = finite_numbers(value, "view", (2,))
         else:
             raise LtmError(f"identifier option {option!r} is unknown; expected ev=E or view=P,Q")
     return LightId(light=values if len(values) == 2 else None,

@@ -273,24 +273,14 @@ def png(code: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _floats(text: str, count: int, name: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(t) for t in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != count or not np.isfinite(values).all():
-        raise LtmError(f"{name} {text!r} must be {count} finite number(s)")
-    return values
-
-
 def parse_query(viewer: Viewer, query: str) -> tuple[Light, float | None]:
     """The light and exposure of a ``/relight`` query string."""
     q = {k: v[-1] for k, v in parse_qs(query).items()}
-    u, = _floats(q.get("u", "0"), 1, "u")
-    v, = _floats(q.get("v", "0"), 1, "v")
-    radius, = _floats(q.get("radius", "0"), 1, "radius")
-    view = _floats(q["view"], 2, "view") if "view" in q and viewer.views else None
-    ev = None if q.get("ev") == AUTO else _floats(q.get("ev", "0"), 1, "ev")[0]
+    u, = iiif.finite_numbers(q.get("u", "0"), "u", (1,))
+    v, = iiif.finite_numbers(q.get("v", "0"), "v", (1,))
+    radius, = iiif.finite_numbers(q.get("radius", "0"), "radius", (1,))
+    view = iiif.finite_numbers(q["view"], "view", (2,)) if "view" in q and viewer.views else None
+    ev = None if q.get("ev") == AUTO else iiif.finite_numbers(q.get("ev", "0"), "ev", (1,))[0]
     if ev is not None:
         check_exposure(CAPTURE, ev)  # a finite number of stops within EV_LIMIT, else a 400
     return viewer.light_at(u, v, radius, view), ev

@@ -90,6 +90,7 @@ CAMERA_SIZE = (1280, 720)
 FOCAL_PX = 1000.0  # at 1280 px wide: a 65 degree horizontal field of view
 # The painting's physics (simulate_raw's shading): the product's own, or one it does not assume
 RAW_SHADINGS = {"ggx": GGX, "mismatched": MISMATCHED}
+SHADING_NAMES = tuple(RAW_SHADINGS)
 LED_OFFSET = (0.012, 0.0, 0.0)  # metres, camera axes
 BOARD_PAPER = "A0"  # 1189 x 841 mm: the camera sees the board everywhere over the 40 cm plane
 BOARD_SQUARE_MM = 30.0

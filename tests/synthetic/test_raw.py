@@ -64,7 +64,9 @@ def test_cli_effects_errors(tmp_path):
                            "--effects", "fog"), "--effects 'fog'")
     one_line_error(run_ltm("simulate", tmp_path / "b", "--scene", "canvas", "--board"),
                    "need --raw")
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    one_line_error(run_ltm("simulate", tmp_path / "c", "--scene", "canvas", "--shading",
+                           "mismatched"), "need --raw")
+    assert not any((tmp_path / name).exists() for name in "abc")
 
 
 def test_camera_b_without_effects_is_as_before(plan, b_none):
