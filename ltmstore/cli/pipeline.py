@@ -14,6 +14,7 @@ from ltmstore.cli.names import (
     DEFAULT_METHOD,
     EV_LIMIT,
     EXPOSURES,
+    IIIF_URL,
     METHOD_NAMES,
     MIN_RATIO,
     SCENES,
@@ -202,10 +203,11 @@ def register(sub) -> None:
                        "repeat to add lights")
     p.add_argument("--view", type=numbers("P,Q"), default=None, metavar="P,Q",
                    help="6D stores: camera position on the view plane (default: its centre)")
-    p.add_argument("-o", "--output", default="relit.png",
-                   help="image file (default: %(default)s). With several lights, one image per "
-                   "light: {i} in the name is the light's number from 0 (relit-{i}.png), or "
-                   "without it -0, -1, ... before the suffix (relit-0.png, relit-1.png)")
+    p.add_argument("-o", "--output", default=None,
+                   help="image file (default: relit.png; --layout iiif: a folder, relit). With "
+                   "several lights, one image per light: {i} in the name is the light's "
+                   "number from 0 (relit-{i}.png), or without it -0, -1, ... before the suffix "
+                   "(relit-0.png, relit-1.png)")
     p.add_argument("--sum", action="store_true",
                    help="several lights: one image lit by all of them together")
     p.add_argument("--exposure", choices=EXPOSURES, default=CAPTURE,
@@ -219,6 +221,16 @@ def register(sub) -> None:
                    help="8: 8-bit images (default); 16: 16-bit PNG or TIFF in the capture's "
                    "transfer; float: float32 TIFF of linear light (times the exposure's gain, "
                    "not clipped)")
+    p.add_argument("--layout", choices=("image", "iiif"), default="image",
+                   help="image: one image file per light (default); iiif: one folder per "
+                   "light (-o names it), a static IIIF Image API 3.0 level-0 service "
+                   "(info.json and 256 px JPEG tiles at every scale) that a plain web server "
+                   "serves to OpenSeadragon, Mirador or OpenLIME, the tiles those of ltm "
+                   "view's IIIF service")
+    p.add_argument("--iiif-url", default=IIIF_URL, metavar="URL",
+                   help="--layout iiif: where the folder's parent will be served; info.json's "
+                   "id is URL/FOLDER (default: %(default)s, what `python -m http.server` run "
+                   "in the parent serves)")
     p.add_argument("--overwrite", action="store_true", help="replace existing image files")
     p.set_defaults(func=cmd_relight)
 
@@ -469,8 +481,14 @@ def cmd_relight(a: argparse.Namespace) -> None:
         lights = None if a.light is None else np.array(a.light)
         directions = None if a.direction is None else np.array(a.direction)
         images = relight(ds, lights, directions=directions, view=a.view)  # lazy: checks only
+        if a.layout == "iiif" and depth != 8:
+            raise LtmError(f"--layout iiif writes 8-bit JPEG tiles; --depth {a.depth} "
+                           "goes with --layout image")
+        if a.output is None:
+            a.output = "relit" if a.layout == "iiif" else "relit.png"
         outputs = image_paths(a.output, images.sizes["light"], combined=a.sum,
-                              overwrite=a.overwrite, inputs=(a.store,), depth=depth)
+                              overwrite=a.overwrite, inputs=(a.store,), depth=depth,
+                              folder=a.layout == "iiif")
         if len(outputs) == 1:
             images = images.sum("light").expand_dims("light")
     for w in caught:
@@ -478,6 +496,8 @@ def cmd_relight(a: argparse.Namespace) -> None:
     if refinement_pending(ds.attrs):
         print(refinement_note(a.store), file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
+    if a.layout == "iiif":
+        return write_iiif_services(images, outputs, a, transfer)
     for out, image in zip(outputs, encoded_images(images, transfer, exposure=a.exposure,
                                                   ev=a.ev, depth=depth), strict=True):
         # whole or not at all: a full disk leaves no file; a 16-bit PNG says its transfer
@@ -485,16 +505,37 @@ def cmd_relight(a: argparse.Namespace) -> None:
         print(f"wrote {out}")
 
 
+def write_iiif_services(images, outputs: list[Path], a: argparse.Namespace,
+                        transfer: str) -> None:
+    """Each light's image of ``images`` as a static IIIF service in its folder of ``outputs``
+    (at ``--exposure auto``, one gain for all of them, as the image files get)."""
+    import numpy as np
+
+    from ltmstore.core.transfer import exposure_gain
+    from ltmstore.share.atomic import atomic_output
+    from ltmstore.share.iiif_static import write_service
+
+    linear = [image.transpose("y", "x", ...).values for image in images]
+    gain = exposure_gain(np.stack(linear), a.exposure) if a.exposure != CAPTURE else 1.0
+    for out, values in zip(outputs, linear, strict=True):
+        with atomic_output(out, overwrite=a.overwrite, folder=True, inputs=(a.store,)) as tmp:
+            info = write_service(values, tmp, transfer=transfer, gain=gain, ev=a.ev,
+                                 service_id=f"{a.iiif_url.rstrip('/')}/{out.name}")
+        print(f"wrote {out}/ ({info['tiles']} tiles; IIIF id {info['id']})")
+
+
 def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool,
-                inputs: tuple = (), depth: int | str = 8) -> list[Path]:
-    """The images of ``n`` lights: one (``combined``, or one light), else one per light named
-    by ``pattern`` with ``{i}`` (or ``-i`` before the suffix); existing ones refused unless
-    ``overwrite``; a missing folder, a suffix that names no image format or a path in one of
-    ``inputs`` (the store) refused; the suffix must hold images of ``depth``."""
+                inputs: tuple = (), depth: int | str = 8, folder: bool = False) -> list[Path]:
+    """The images (or, ``folder``, folders) of ``n`` lights: one (``combined``, or one
+    light), else one per light named by ``pattern`` with ``{i}`` (or ``-i`` before the
+    suffix); existing ones refused unless ``overwrite``; a missing parent folder, a suffix that
+    names no image format (an image) or a path in one of ``inputs`` (the store) refused; the
+    suffix must hold images of ``depth``."""
     from ltmstore.core.imagefile import check_image_path
     from ltmstore.share.atomic import check_output
 
-    check_image_path(pattern, depth)
+    if not folder:
+        check_image_path(pattern, depth)
     if combined and n > 1:
         paths = [Path(pattern.replace("{i}", "sum"))]
     elif "{i}" in pattern or n == 1:

@@ -1,0 +1,110 @@
+"""A relit image as a static IIIF Image API 3.0 level-0 service: a folder any web server serves.
+
+The folder holds ``info.json`` and one JPEG per tile at each scale factor, named as the IIIF
+implementation notes' tile algorithm requests it (what OpenSeadragon, Mirador and OpenLIME ask
+for a level-0 service)::
+
+    info.json
+    {x},{y},{w},{h}/{ws},{hs}/0/default.jpg
+    full/{ws},{hs}/0/default.jpg       (and full/max at full size)
+
+``{x},{y},{w},{h}`` the tile's region in full-image pixels (cropped at the image's edge), ``ws =
+ceil(w / s)`` and ``hs = ceil(h / s)`` at scale factor ``s``; where one tile holds the whole
+image, it is also written under ``full`` (the sizes ``info.json`` lists), as viewers ask for it.
+Each tile is computed as ``ltm view`` computes the same request (:mod:`ltmstore.share.iiif`):
+the linear relit region, area resampled, then encoded, so a tile on disk and the one served for
+its URL are the same picture.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from ltmstore.core.transfer import CAPTURE, encode_images
+from ltmstore.share import iiif
+from ltmstore.share.relit_tiles import area_resample, encode_jpeg
+
+DEFAULT_URL = "http://127.0.0.1:8000"  # `python -m http.server` in the folder's parent
+
+
+def tiles(width: int, height: int, tile: int = iiif.TILE) -> Iterator[tuple[tuple, tuple]]:
+    """Every tile of a level-0 service: ``((x, y, w, h), (ws, hs))``, region and size, for each
+    scale factor of :func:`ltmstore.share.iiif.scale_factors`."""
+    for s in iiif.scale_factors(width, height, tile):
+        step = tile * s
+        for y in range(0, height, step):
+            for x in range(0, width, step):
+                w, h = min(step, width - x), min(step, height - y)
+                yield (x, y, w, h), (math.ceil(w / s), math.ceil(h / s))
+
+
+def tile_paths(region: tuple[int, int, int, int], size: tuple[int, int],
+               width: int, height: int) -> list[str]:
+    """The tile's paths below the service, as viewers request it."""
+    paths = [f"{','.join(map(str, region))}/{size[0]},{size[1]}/0/default.jpg"]
+    if region == (0, 0, width, height):
+        paths.append(f"full/{size[0]},{size[1]}/0/default.jpg")
+        if size == (width, height):
+            paths.append("full/max/0/default.jpg")
+    return paths
+
+
+def write_service(linear: np.ndarray, out: str | os.PathLike, *, transfer: str,
+                  service_id: str, gain: float = 1.0, ev: float = 0.0,
+                  tile: int = iiif.TILE) -> dict:
+    """Write ``linear`` (an image ``(y, x[, color])`` as :func:`ltmstore.relight` gives it) as
+    a level-0 IIIF image service in the folder ``out``.
+
+    Parameters
+    ----------
+    linear : numpy.ndarray
+        Linear relit values.
+    out : path-like
+        An existing, empty folder.
+    transfer : str
+        The capture's transfer function (``srgb`` or ``linear``).
+    service_id : str
+        The URL the folder will be served at (``info.json``'s ``id``: viewers build the tiles'
+        URLs from it).
+    gain : float
+        A factor on ``linear`` before encoding (``--exposure auto``'s); 1 at the capture's
+        exposure.
+    ev : float
+        Stops brighter than the capture's exposure, as ``ltm relight --ev``.
+    tile : int
+        Tile side in pixels.
+
+    Returns
+    -------
+    dict
+        ``width``, ``height``, ``tiles`` (how many), ``scale_factors`` and ``id``.
+    """
+    out = Path(out)
+    height, width = linear.shape[:2]
+    info = iiif.info(service_id, width, height, tile)
+    for key in ("extraFormats", "extraFeatures"):  # a folder answers only its own tiles
+        del info[key]
+    whole = [size for region, size in tiles(width, height, tile)
+             if region == (0, 0, width, height)]
+    info["sizes"] = [{"width": w, "height": h} for w, h in sorted(whole)]
+    (out / "info.json").write_text(json.dumps(info, indent=1) + "\n")
+    count = 0
+    for (x, y, w, h), size in tiles(width, height, tile):
+        values = area_resample(area_resample(linear[y:y + h, x:x + w], width=size[0]),
+                               height=size[1])
+        if gain != 1.0:
+            values = values * np.float32(gain)
+        code = encode_images(values[None], transfer, exposure=CAPTURE, ev=ev)[0]
+        body = encode_jpeg(code)
+        for name in tile_paths((x, y, w, h), size, width, height):
+            (out / name).parent.mkdir(parents=True)
+            (out / name).write_bytes(body)
+        count += 1
+    return {"width": width, "height": height, "tiles": count,
+            "scale_factors": info["tiles"][0]["scaleFactors"], "id": service_id}
