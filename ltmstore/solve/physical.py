@@ -526,12 +526,13 @@ def _share_roughness(theta: np.ndarray, evidence: np.ndarray, lights: Lights,
                      w: np.ndarray) -> np.ndarray:
     """Pixels that did not see their highlight's peak (evidence below :data:`SHARE_EVIDENCE`)
     and fitted a lobe sharper than the tile's pixels that did are given the median roughness of
-    those (the same materials, seen from other angles elsewhere in the tile), with the strength
-    that keeps the lobe's least-squares fit on their observed cells: a lobe is never sharpened
-    into a hole that no observation supports. A prior, not a constraint: pixels that saw their
-    peak keep their own."""
+    those (the same materials, seen from other angles elsewhere in the tile; where fewer than 4
+    saw theirs, the median of the whole tile's), with the strength that keeps the lobe's
+    least-squares fit on their observed cells: a lobe is never sharpened into a hole that no
+    observation supports. A prior, not a constraint: pixels that saw their peak keep their
+    own."""
     good = evidence >= SHARE_EVIDENCE
-    shared = np.median(theta[good, 4]) if good.sum() >= 4 else np.log(ALPHA_RANGE[0])
+    shared = np.median(theta[good, 4] if good.sum() >= 4 else theta[:, 4])
     weak = ~good & (theta[:, 4] < shared)
     if not weak.any():
         return theta
