@@ -227,9 +227,9 @@ def register(sub) -> None:
                    "(info.json and 256 px JPEG tiles at every scale) that a plain web server "
                    "serves to OpenSeadragon, Mirador or OpenLIME, the tiles those of ltm "
                    "view's IIIF service")
-    p.add_argument("--iiif-url", default=IIIF_URL, metavar="URL",
+    p.add_argument("--iiif-url", default=None, metavar="URL",
                    help="--layout iiif: where the folder's parent will be served; info.json's "
-                   "id is URL/FOLDER (default: %(default)s, what `python -m http.server` run "
+                   f"id is URL/FOLDER (default: {IIIF_URL}, what `python -m http.server` run "
                    "in the parent serves)")
     p.add_argument("--overwrite", action="store_true", help="replace existing image files")
     p.set_defaults(func=cmd_relight)
@@ -484,6 +484,8 @@ def cmd_relight(a: argparse.Namespace) -> None:
         if a.layout == "iiif" and depth != 8:
             raise LtmError(f"--layout iiif writes 8-bit JPEG tiles; --depth {a.depth} "
                            "goes with --layout image")
+        if a.layout != "iiif" and a.iiif_url is not None:
+            raise LtmError("--iiif-url goes with --layout iiif")
         if a.output is None:
             a.output = "relit" if a.layout == "iiif" else "relit.png"
         outputs = image_paths(a.output, images.sizes["light"], combined=a.sum,
@@ -497,31 +499,18 @@ def cmd_relight(a: argparse.Namespace) -> None:
         print(refinement_note(a.store), file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
     if a.layout == "iiif":
-        return write_iiif_services(images, outputs, a, transfer)
+        from ltmstore.share.iiif_static import write_services
+
+        for out, info in write_services(images, outputs, transfer=transfer, exposure=a.exposure,
+                                        ev=a.ev, url=a.iiif_url or IIIF_URL,
+                                        overwrite=a.overwrite, inputs=(a.store,)):
+            print(f"wrote {out}/ ({info['tiles']} tiles; IIIF id {info['id']})")
+        return
     for out, image in zip(outputs, encoded_images(images, transfer, exposure=a.exposure,
                                                   ev=a.ev, depth=depth), strict=True):
         # whole or not at all: a full disk leaves no file; a 16-bit PNG says its transfer
         write_image(out, image, transfer=transfer if depth == 16 else None)
         print(f"wrote {out}")
-
-
-def write_iiif_services(images, outputs: list[Path], a: argparse.Namespace,
-                        transfer: str) -> None:
-    """Each light's image of ``images`` as a static IIIF service in its folder of ``outputs``
-    (at ``--exposure auto``, one gain for all of them, as the image files get)."""
-    import numpy as np
-
-    from ltmstore.core.transfer import exposure_gain
-    from ltmstore.share.atomic import atomic_output
-    from ltmstore.share.iiif_static import write_service
-
-    linear = [image.transpose("y", "x", ...).values for image in images]
-    gain = exposure_gain(np.stack(linear), a.exposure) if a.exposure != CAPTURE else 1.0
-    for out, values in zip(outputs, linear, strict=True):
-        with atomic_output(out, overwrite=a.overwrite, folder=True, inputs=(a.store,)) as tmp:
-            info = write_service(values, tmp, transfer=transfer, gain=gain, ev=a.ev,
-                                 service_id=f"{a.iiif_url.rstrip('/')}/{out.name}")
-        print(f"wrote {out}/ ({info['tiles']} tiles; IIIF id {info['id']})")
 
 
 def image_paths(pattern: str, n: int, *, combined: bool, overwrite: bool,

@@ -21,13 +21,15 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
+import xarray as xr
 
-from ltmstore.core.transfer import CAPTURE, encode_images
+from ltmstore.core.transfer import CAPTURE, encode_images, exposure_gain
 from ltmstore.share import iiif
+from ltmstore.share.atomic import atomic_output
 from ltmstore.share.relit_tiles import area_resample, encode_jpeg
 
 DEFAULT_URL = "http://127.0.0.1:8000"  # `python -m http.server` in the folder's parent
@@ -108,3 +110,25 @@ def write_service(linear: np.ndarray, out: str | os.PathLike, *, transfer: str,
         count += 1
     return {"width": width, "height": height, "tiles": count,
             "scale_factors": info["tiles"][0]["scaleFactors"], "id": service_id}
+
+
+def write_services(images: xr.DataArray, outputs: list[Path], *, transfer: str,
+                   exposure: str = CAPTURE, ev: float = 0.0, url: str = DEFAULT_URL,
+                   overwrite: bool = False,
+                   inputs: Iterable[str | os.PathLike] = ()) -> Iterator[tuple[Path, dict]]:
+    """Each light's image of ``images`` (:func:`ltmstore.relight`'s, dims ``(light, y,
+    x[, color])``) as a service in its folder of ``outputs``, whole or not at all.
+
+    ``exposure`` and ``ev`` as ``ltm relight`` takes them (``auto``: one gain from every
+    light's image, as its image files get); ``url``: where the folders' parent is served (each
+    ``id`` is ``url/<folder name>``); ``overwrite`` and ``inputs`` as
+    :func:`ltmstore.share.atomic.atomic_output` takes them. Yields each folder and
+    :func:`write_service`'s summary.
+    """
+    linear = [image.transpose("y", "x", ...).values for image in images]
+    gain = exposure_gain(np.stack(linear), exposure) if exposure != CAPTURE else 1.0
+    for out, values in zip(outputs, linear, strict=True):
+        with atomic_output(out, overwrite=overwrite, folder=True, inputs=inputs) as tmp:
+            info = write_service(values, tmp, transfer=transfer, gain=gain, ev=ev,
+                                 service_id=f"{url.rstrip('/')}/{Path(out).name}")
+        yield Path(out), info

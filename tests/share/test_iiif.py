@@ -432,7 +432,24 @@ def test_static_service_errors_are_one_line(small_store, tmp_path):
     proc = run_ltm("relight", small_store, "--light", "0,0", "--layout", "iiif",
                    "-o", tmp_path / "b")
     assert proc.returncode == 2 and "already exists; pass --overwrite" in proc.stderr
-    assert not (tmp_path / "a").exists() and not any((tmp_path / "b").iterdir())
+    proc = run_ltm("relight", small_store, "--light", "0,0", "--iiif-url", "https://x.example",
+                   "-o", tmp_path / "c.png")
+    assert proc.returncode == 2 and "--iiif-url goes with --layout iiif" in proc.stderr
+    assert not any((tmp_path / name).exists() for name in ("a", "c.png"))
+    assert not any((tmp_path / "b").iterdir())
+
+
+def test_auto_exposure_takes_the_image_files_gain(small_store, tmp_path):
+    """``--exposure auto`` (the gain from the whole image, which ``ltm view``'s tiles refuse):
+    the folder's full-size image is the PNG ``ltm relight --exposure auto`` writes."""
+    out, _ = static_service(small_store, tmp_path, "--exposure", "auto")
+    expected = cli_image(small_store, "--light", "0.1,-0.05", "--exposure", "auto")
+    got = np.asarray(Image.open(out / "full" / "max" / "0" / "default.jpg"), float)
+    capture = cli_image(small_store, "--light", "0.1,-0.05").astype(float)
+    error, gained = np.abs(got - expected).mean(), np.abs(expected - capture).mean()
+    # measured: 3.5 code values from the auto PNG (JPEG q90 of a noisy 32 px image), where
+    # auto moved the PNG 16.5 from the capture's exposure
+    assert error < 4.5 and gained > 12, (error, gained)
 
 
 @pytest.mark.skipif(not (OPENLIME_SRC / "LayoutTiles.js").is_file(),
