@@ -27,6 +27,60 @@ OPENLIME_SRC = Path(os.environ.get(
     "LTM_OPENLIME_SRC", Path.home() / ".cache" / "ltmstore-tests" / "openlime" / "src"))
 
 
+# OpenSeadragon's published build, from the npm registry (BSD-3-Clause)
+OPENSEADRAGON = "openseadragon@5.0.1"
+OPENSEADRAGON_JS = Path(os.environ.get(
+    "LTM_OPENSEADRAGON_JS", Path.home() / ".cache" / "ltmstore-tests" / OPENSEADRAGON
+    / "openseadragon.min.js"))
+
+
+def openseadragon_js() -> Path:
+    """OpenSeadragon's ``openseadragon.min.js``, fetched once with ``npm pack`` where it is
+    missing; a skip with the reason where npm cannot fetch it."""
+    import pytest
+
+    if OPENSEADRAGON_JS.is_file():
+        return OPENSEADRAGON_JS
+    npm = shutil.which("npm")
+    if npm is None:
+        pytest.skip(f"OpenSeadragon absent at {OPENSEADRAGON_JS} and npm is missing")
+    with tempfile.TemporaryDirectory() as folder:
+        proc = subprocess.run([npm, "pack", OPENSEADRAGON, "--silent"], cwd=folder, text=True,
+                              capture_output=True, timeout=120)
+        if proc.returncode != 0:
+            pytest.skip(f"npm pack {OPENSEADRAGON} failed: {proc.stderr.strip()[-200:]}")
+        import tarfile
+
+        with tarfile.open(Path(folder) / proc.stdout.strip().splitlines()[-1]) as tar:
+            body = tar.extractfile("package/build/openseadragon/openseadragon.min.js").read()
+        OPENSEADRAGON_JS.parent.mkdir(parents=True, exist_ok=True)
+        part = OPENSEADRAGON_JS.with_suffix(f".{os.getpid()}.part")
+        part.write_bytes(body)
+        part.replace(OPENSEADRAGON_JS)  # whole or not at all, under parallel workers
+    return OPENSEADRAGON_JS
+
+
+OPENSEADRAGON_PAGE = """<!doctype html><html><head><style>
+html, body {{ margin: 0; background: #000 }}
+#osd {{ width: {w}px; height: {h}px }}
+</style><script src="/openseadragon.min.js"></script></head><body><div id="osd"></div>
+<script>
+const viewer = OpenSeadragon({{ id: 'osd', tileSources: '{url}', drawer: 'canvas',
+  showNavigationControl: false, animationTime: 0, immediateRender: true,
+  imageSmoothingEnabled: false, crossOriginPolicy: 'Anonymous' }});
+viewer.world.addHandler('add-item', (e) => e.item.addHandler('fully-loaded-change', (f) => {{
+  if (f.fullyLoaded) window.ready = true; }}));
+window.viewer = viewer;
+</script></body></html>"""
+
+
+def openseadragon_page(width: int, height: int, url: str) -> str:
+    """A page that opens the Deep Zoom image at ``url`` in OpenSeadragon (its canvas drawer) in
+    a ``width`` x ``height`` viewer, served beside ``/openseadragon.min.js``; ``window.ready``
+    once every tile on the screen is drawn."""
+    return OPENSEADRAGON_PAGE.format(w=width, h=height, url=url)
+
+
 def openlime_import_map() -> str:
     """An import map for OpenLIME's sources served at ``/openlime/``. Its modules import each
     other with and without ``.js`` (``LayoutTiles.js``: ``from "./Layout"``, ``Layer.js``: ``from

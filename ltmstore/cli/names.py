@@ -45,8 +45,9 @@ DEFAULT_PLANES = 27
 LAYOUTS = ("image", "deepzoom")
 TILE_SIZE = 256
 
-# ltmstore.share.iiif_static.DEFAULT_URL
+# ltmstore.share.static_tiles.DEFAULT_URL and LAYOUTS
 IIIF_URL = "http://127.0.0.1:8000"
+TILED_LAYOUTS = ("iiif", "deepzoom")
 
 # the names above, each with the library module and name it copies (for the test)
 ORIGINALS = {
@@ -67,5 +68,6 @@ ORIGINALS = {
     "DEFAULT_PLANES": ("ltmstore.share.pca_web", "DEFAULT_PLANES"),
     "LAYOUTS": ("ltmstore.share.tiles", "LAYOUTS"),
     "TILE_SIZE": ("ltmstore.share.tiles", "TILE_SIZE"),
-    "IIIF_URL": ("ltmstore.share.iiif_static", "DEFAULT_URL"),
+    "IIIF_URL": ("ltmstore.share.static_tiles", "DEFAULT_URL"),
+    "TILED_LAYOUTS": ("ltmstore.share.static_tiles", "LAYOUTS"),
 }

@@ -20,6 +20,7 @@ from ltmstore.cli.names import (
     SCENES,
     SHADINGS,
     TARGET_RATIO,
+    TILED_LAYOUTS,
 )
 from ltmstore.core.errors import LtmError, LtmWarning
 
@@ -204,10 +205,10 @@ def register(sub) -> None:
     p.add_argument("--view", type=numbers("P,Q"), default=None, metavar="P,Q",
                    help="6D stores: camera position on the view plane (default: its centre)")
     p.add_argument("-o", "--output", default=None,
-                   help="image file (default: relit.png; --layout iiif: a folder, relit). With "
-                   "several lights, one image per light: {i} in the name is the light's "
-                   "number from 0 (relit-{i}.png), or without it -0, -1, ... before the suffix "
-                   "(relit-0.png, relit-1.png)")
+                   help="image file (default: relit.png; --layout iiif or deepzoom: a folder, "
+                   "relit). With several lights, one image per light: {i} in the name is the "
+                   "light's number from 0 (relit-{i}.png), or without it -0, -1, ... before "
+                   "the suffix (relit-0.png, relit-1.png)")
     p.add_argument("--sum", action="store_true",
                    help="several lights: one image lit by all of them together")
     p.add_argument("--exposure", choices=EXPOSURES, default=CAPTURE,
@@ -221,12 +222,14 @@ def register(sub) -> None:
                    help="8: 8-bit images (default); 16: 16-bit PNG or TIFF in the capture's "
                    "transfer; float: float32 TIFF of linear light (times the exposure's gain, "
                    "not clipped)")
-    p.add_argument("--layout", choices=("image", "iiif"), default="image",
+    p.add_argument("--layout", choices=("image", *TILED_LAYOUTS), default="image",
                    help="image: one image file per light (default); iiif: one folder per "
                    "light (-o names it), a static IIIF Image API 3.0 level-0 service "
                    "(info.json and 256 px JPEG tiles at every scale) that a plain web server "
                    "serves to OpenSeadragon, Mirador or OpenLIME, the tiles those of ltm "
-                   "view's IIIF service")
+                   "view's IIIF service; deepzoom: one folder per light holding a Deep Zoom "
+                   "image (image.dzi, image_files/: 256 px JPEG tiles, levels down to 1 px) "
+                   "for OpenSeadragon or OpenLIME's deepzoom1px layout")
     p.add_argument("--iiif-url", default=None, metavar="URL",
                    help="--layout iiif: where the folder's parent will be served; info.json's "
                    f"id is URL/FOLDER (default: {IIIF_URL}, what `python -m http.server` run "
@@ -481,16 +484,17 @@ def cmd_relight(a: argparse.Namespace) -> None:
         lights = None if a.light is None else np.array(a.light)
         directions = None if a.direction is None else np.array(a.direction)
         images = relight(ds, lights, directions=directions, view=a.view)  # lazy: checks only
-        if a.layout == "iiif" and depth != 8:
-            raise LtmError(f"--layout iiif writes 8-bit JPEG tiles; --depth {a.depth} "
+        tiled = a.layout != "image"
+        if tiled and depth != 8:
+            raise LtmError(f"--layout {a.layout} writes 8-bit JPEG tiles; --depth {a.depth} "
                            "goes with --layout image")
         if a.layout != "iiif" and a.iiif_url is not None:
             raise LtmError("--iiif-url goes with --layout iiif")
         if a.output is None:
-            a.output = "relit" if a.layout == "iiif" else "relit.png"
+            a.output = "relit" if tiled else "relit.png"
         outputs = image_paths(a.output, images.sizes["light"], combined=a.sum,
                               overwrite=a.overwrite, inputs=(a.store,), depth=depth,
-                              folder=a.layout == "iiif")
+                              folder=tiled)
         if len(outputs) == 1:
             images = images.sum("light").expand_dims("light")
     for w in caught:
@@ -498,13 +502,15 @@ def cmd_relight(a: argparse.Namespace) -> None:
     if refinement_pending(ds.attrs):
         print(refinement_note(a.store), file=sys.stderr)
     transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-    if a.layout == "iiif":
-        from ltmstore.share.iiif_static import write_services
+    if tiled:
+        from ltmstore.share.static_tiles import write_folders
 
-        for out, info in write_services(images, outputs, transfer=transfer, exposure=a.exposure,
-                                        ev=a.ev, url=a.iiif_url or IIIF_URL,
-                                        overwrite=a.overwrite, inputs=(a.store,)):
-            print(f"wrote {out}/ ({info['tiles']} tiles; IIIF id {info['id']})")
+        for out, info in write_folders(images, outputs, layout=a.layout, transfer=transfer,
+                                       exposure=a.exposure, ev=a.ev, url=a.iiif_url or IIIF_URL,
+                                       overwrite=a.overwrite, inputs=(a.store,)):
+            kind = (f"IIIF id {info['id']}" if a.layout == "iiif"
+                    else f"{info['levels']} levels; open {out}/image.dzi")
+            print(f"wrote {out}/ ({info['tiles']} tiles; {kind})")
         return
     for out, image in zip(outputs, encoded_images(images, transfer, exposure=a.exposure,
                                                   ev=a.ev, depth=depth), strict=True):

@@ -4,6 +4,7 @@ relight``'s image of the whole store, bytes read against the whole image's."""
 from __future__ import annotations
 
 import collections
+import contextlib
 import functools
 import io
 import json
@@ -16,7 +17,13 @@ from urllib.parse import urlsplit
 import numpy as np
 import pytest
 import zarr
-from browser import OPENLIME_SRC, Browser, openlime_page
+from browser import (
+    OPENLIME_SRC,
+    Browser,
+    openlime_page,
+    openseadragon_js,
+    openseadragon_page,
+)
 from PIL import Image
 from pipeline_helpers import run_ltm, served_view
 
@@ -400,7 +407,7 @@ def test_relight_writes_the_served_tiles_as_a_level0_folder(near, small_store, t
 def test_every_scale_of_a_tiled_service_is_the_area_averaged_image(near, small_store, tmp_path):
     """8 px tiles of the 32 x 32 store: scale factors 1, 2, 4; the tiles of each scale cover
     the image once, each the served tile of its URL, together the area-averaged image."""
-    from ltmstore.share.iiif_static import tiles, write_service
+    from ltmstore.share.static_tiles import tiles, write_service
 
     _, address = near
     ds = open_store(small_store)
@@ -452,23 +459,15 @@ def test_auto_exposure_takes_the_image_files_gain(small_store, tmp_path):
     assert error < 4.5 and gained > 12, (error, gained)
 
 
-@pytest.mark.skipif(not (OPENLIME_SRC / "LayoutTiles.js").is_file(),
-                    reason=f"OpenLIME's sources absent at {OPENLIME_SRC}")
-def test_openlime_draws_the_static_service(small_store, tmp_path):
-    """The folder served by a plain static web server (Python's), drawn by OpenLIME's IIIF
-    layout: ``ltm relight``'s PNG of the same light."""
+@contextlib.contextmanager
+def static_server(folder):
+    """A plain static web server (Python's) of ``folder`` on loopback: its port."""
     import threading
     from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 
-    static_service(small_store, tmp_path)
-    expected = cli_image(small_store, "--light", "0.1,-0.05")
-    h, w = expected.shape[:2]
-    (tmp_path / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
-    (tmp_path / "page.html").write_text(openlime_page(w, h, "image", "iiif", "relit/info.json"))
-
     class Quiet(SimpleHTTPRequestHandler):
         def __init__(self, *args, **kwargs) -> None:
-            super().__init__(*args, directory=str(tmp_path), **kwargs)
+            super().__init__(*args, directory=str(folder), **kwargs)
 
         def log_message(self, *args) -> None:
             pass
@@ -476,12 +475,151 @@ def test_openlime_draws_the_static_service(small_store, tmp_path):
     server = ThreadingHTTPServer(("127.0.0.1", 0), Quiet)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
-        with Browser(64, 64) as browser:
-            browser.goto(f"http://127.0.0.1:{server.server_address[1]}/page.html")
-            browser.wait_for(f"window.ready === true && viewer.canvasElement.width === {w}")
-            shown = openlime_canvas(browser)
+        yield server.server_address[1]
     finally:
         server.shutdown()
         server.server_close()
+
+
+def openlime_draws(folder, kind: str, layout: str, url: str, width: int,
+                   height: int) -> np.ndarray:
+    """OpenLIME's canvas (``width`` x ``height``) drawing one layer of ``folder``, served by a
+    static server."""
+    (folder / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
+    (folder / "page.html").write_text(openlime_page(width, height, kind, layout, url))
+    with static_server(folder) as port, Browser(64, 64) as browser:
+        browser.goto(f"http://127.0.0.1:{port}/page.html")
+        browser.wait_for(f"window.ready === true && viewer.canvasElement.width === {width}")
+        return openlime_canvas(browser)
+
+
+@pytest.mark.skipif(not (OPENLIME_SRC / "LayoutTiles.js").is_file(),
+                    reason=f"OpenLIME's sources absent at {OPENLIME_SRC}")
+def test_openlime_draws_the_static_service(small_store, tmp_path):
+    """The folder served by a plain static web server, drawn by OpenLIME's IIIF layout:
+    ``ltm relight``'s PNG of the same light."""
+    static_service(small_store, tmp_path)
+    expected = cli_image(small_store, "--light", "0.1,-0.05")
+    h, w = expected.shape[:2]
+    shown = openlime_draws(tmp_path, "image", "iiif", "relit/info.json", w, h)
     diff = np.abs(shown - expected)
     assert diff.mean() < 5 and diff[h // 2, w // 2].max() < 16, (diff.mean(), diff.max())
+
+
+# -- the Deep Zoom folder on disk (ltm relight --layout deepzoom) ----------------------------
+
+def dzi_fields(path) -> dict:
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(path).getroot()
+    size = root.find("{http://schemas.microsoft.com/deepzoom/2008}Size")
+    return {"Format": root.get("Format"), "TileSize": int(root.get("TileSize")),
+            "Overlap": int(root.get("Overlap")), "Width": int(size.get("Width")),
+            "Height": int(size.get("Height"))}
+
+
+def test_relight_writes_a_deepzoom_pyramid_down_to_one_pixel(small_store, tmp_path):
+    """``image.dzi`` and one 256 px tile per level of the 32 x 32 store, levels 0 (1 px) to 5
+    (the full image): the full level is ``ltm relight``'s PNG, a level below the image
+    area-averaged in linear light, then encoded."""
+    out = tmp_path / "relit"
+    proc = run_ltm("relight", small_store, "--light", "0.1,-0.05", "--layout", "deepzoom",
+                   "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    assert f"wrote {out}/ (6 tiles; 6 levels; open {out}/image.dzi)" in proc.stdout
+    assert dzi_fields(out / "image.dzi") == {"Format": "jpg", "TileSize": 256, "Overlap": 1,
+                                             "Width": 32, "Height": 32}
+    files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    assert files == ["image.dzi", *(f"image_files/{level}/0_0.jpg" for level in range(6))]
+    sizes = [Image.open(out / f"image_files/{level}/0_0.jpg").size for level in range(6)]
+    assert sizes == [(1, 1), (2, 2), (4, 4), (8, 8), (16, 16), (32, 32)]
+    full = np.asarray(Image.open(out / "image_files/5/0_0.jpg"), float)
+    png = cli_image(small_store, "--light", "0.1,-0.05")
+    ds = open_store(small_store)
+    linear = relight(ds, [NEAR_LIGHT]).isel(light=0).transpose("y", "x", ...).values
+    transfer = ds.attrs["acquisition"].get("transfer", "srgb")
+    level3 = np.asarray(Image.open(out / "image_files/3/0_0.jpg"), float)
+    averaged = encode_images(box_average(linear, 8, 8)[None], transfer)[0]
+    errors = np.abs(full - png).mean(), np.abs(level3 - averaged).mean()
+    # measured: 3.4 and 4.5 (JPEG q90 of the noisy 32 and 8 px images), where a level out of
+    # place differs by the image's own spread about its mean, 21-25
+    assert errors[0] < 4.5 and errors[1] < 5.5, errors
+
+
+def test_deepzoom_tiles_overlap_and_cover_each_level(small_store, tmp_path):
+    """8 px tiles overlapping by 1 px: 4 x 4 tiles at full size, each its region widened by
+    the overlap inside the image; without it they make up the image."""
+    from ltmstore.share.static_tiles import write_dzi
+
+    ds = open_store(small_store)
+    linear = relight(ds, [NEAR_LIGHT]).isel(light=0).transpose("y", "x", ...).values
+    transfer = ds.attrs["acquisition"].get("transfer", "srgb")
+    info = write_dzi(linear, tmp_path, transfer=transfer, tile=8, overlap=1)
+    assert info == {"width": 32, "height": 32, "levels": 6, "tiles": 16 + 4 + 1 + 1 + 1 + 1}
+    for level, side in ((5, 32), (4, 16)):
+        expected = encode_images(box_average(linear, side, side)[None], transfer)[0]
+        canvas = np.zeros_like(expected, dtype=float)
+        for ty in range(side // 8):
+            for tx in range(side // 8):
+                tile = np.asarray(Image.open(tmp_path / f"image_files/{level}/{tx}_{ty}.jpg"))
+                left, top = int(tx > 0), int(ty > 0)
+                assert tile.shape[:2] == (8 + top + (ty < side // 8 - 1),
+                                          8 + left + (tx < side // 8 - 1)), (level, tx, ty)
+                canvas[8 * ty:8 * ty + 8, 8 * tx:8 * tx + 8] = tile[top:top + 8, left:left + 8]
+        error = np.abs(canvas - expected).mean()
+        # measured: 3.2 and 3.5 (JPEG q90 of 8-10 px tiles)
+        assert error < 4.5, (level, error)
+
+
+def test_deepzoom_errors_are_one_line(small_store, tmp_path):
+    proc = run_ltm("relight", small_store, "--light", "0,0", "--layout", "deepzoom",
+                   "--depth", "float", "-o", tmp_path / "a")
+    assert proc.returncode == 2 and "--layout deepzoom writes 8-bit JPEG tiles" in proc.stderr
+    proc = run_ltm("relight", small_store, "--light", "0,0", "--layout", "deepzoom",
+                   "--iiif-url", "https://x.example", "-o", tmp_path / "b")
+    assert proc.returncode == 2 and "--iiif-url goes with --layout iiif" in proc.stderr
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.skipif(not (OPENLIME_SRC / "LayoutTiles.js").is_file(),
+                    reason=f"OpenLIME's sources absent at {OPENLIME_SRC}")
+def test_openlime_draws_the_deepzoom_folder(small_store, tmp_path):
+    """OpenLIME's ``deepzoom1px`` layout (its levels counted from the one-tile level, so 8 px
+    tiles give the 32 px store a pyramid) draws the folder: ``ltm relight``'s PNG."""
+    from ltmstore.share.static_tiles import write_dzi
+
+    ds = open_store(small_store)
+    linear = relight(ds, [NEAR_LIGHT]).isel(light=0).transpose("y", "x", ...).values
+    (tmp_path / "relit").mkdir()
+    write_dzi(linear, tmp_path / "relit", transfer=ds.attrs["acquisition"].get("transfer",
+                                                                             "srgb"), tile=8)
+    expected = cli_image(small_store, "--light", "0.1,-0.05")
+    h, w = expected.shape[:2]
+    shown = openlime_draws(tmp_path, "image", "deepzoom1px", "relit/image.dzi", w, h)
+    diff = np.abs(shown - expected)
+    assert diff.mean() < 5 and diff[h // 2, w // 2].max() < 16, (diff.mean(), diff.max())
+
+
+def test_openseadragon_draws_the_deepzoom_folder(small_store, tmp_path):
+    """OpenSeadragon (its npm build, canvas drawer) opens what ``ltm relight --layout
+    deepzoom`` wrote, from Python's static server, and shows ``ltm relight``'s PNG."""
+    import base64
+
+    script = openseadragon_js()
+    out = tmp_path / "relit"
+    proc = run_ltm("relight", small_store, "--light", "0.1,-0.05", "--layout", "deepzoom",
+                   "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    expected = cli_image(small_store, "--light", "0.1,-0.05")
+    h, w = expected.shape[:2]
+    (tmp_path / "openseadragon.min.js").symlink_to(script)
+    (tmp_path / "page.html").write_text(openseadragon_page(w, h, "relit/image.dzi"))
+    with static_server(tmp_path) as port, Browser(64, 64) as browser:
+        browser.goto(f"http://127.0.0.1:{port}/page.html")
+        browser.wait_for("window.ready === true")
+        data = browser.evaluate("viewer.drawer.canvas.toDataURL('image/png')")
+    shown = np.asarray(Image.open(io.BytesIO(base64.b64decode(data.split(",", 1)[1]))))
+    assert shown.shape[:2] == (h, w), shown.shape
+    diff = np.abs(shown[..., :3].astype(float) - expected)
+    # measured: 3.40, the full level's own JPEG error (OpenSeadragon draws it 1:1)
+    assert diff.mean() < 4.5 and diff[h // 2, w // 2].max() < 16, (diff.mean(), diff.max())
