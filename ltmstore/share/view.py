@@ -6,16 +6,20 @@ it for relit images, one request in flight at a time:
 
 ``GET /info``
     The store's shape, light kind, plane or disk, view plane and overlays, as JSON.
-``GET /relight?u=U&v=V[&radius=R][&view=P,Q][&ev=E|auto]``
-    A PNG of the store relit by :func:`ltmstore.stages.relight.relight`. ``U, V`` in
+``GET /relight?u=U&v=V[&radius=R][&view=P,Q][&ev=E|auto][&region=X,Y,W,H][&size=WS,HS]``
+    A PNG of the store relit by :func:`ltmstore.stages.relight.relight`: of the whole image,
+    or of ``region`` (pixels from the top left) only, area-averaged in linear light to
+    ``size`` (at most the region's own; default it); the page asks for what is on the screen
+    at the screen's resolution, so a huge store is read where it is shown. ``U, V`` in
     ``[-1, 1]`` are the pointer over the image (``U`` right, ``V`` up): for a near-light store the
     plane rectangle spans the image, for a far-light store the unit disk of ``(lx, ly)`` does
     (a direction). ``R`` (same units, 0: a point light) makes an area light: a uniform disk on the
     plane (or a cone of directions) of the same total power. ``ev=E`` (default 0) is the
     capture's exposure ``E`` stops brighter, as ``ltm relight --ev E`` writes it (photometric:
     the page starts there); ``ev=auto`` scales each image so that its brightest 0.5 % clip, as
-    ``ltm relight --exposure auto``. An ``E`` that is not a finite number of stops within
-    :data:`~ltmstore.core.transfer.EV_LIMIT` is answered 400. The light used is in the
+    ``ltm relight --exposure auto`` (of the region asked: what is on the screen). An ``E``
+    that is not a finite number of stops within :data:`~ltmstore.core.transfer.EV_LIMIT`, a
+    region outside the image or a size larger than it are answered 400. The light used is in the
     ``X-Ltm-Light`` header (JSON).
 ``GET /expected_error.png``
     The store's ``expected_error (y, x)`` as a colour map (transparent where unknown).
@@ -66,7 +70,7 @@ from ltmstore.core.lights import FAR, light_kind
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import AUTO, CAPTURE, check_exposure, encode_images
 from ltmstore.share import iiif
-from ltmstore.share.relit_tiles import RelitTiles
+from ltmstore.share.relit_tiles import RelitTiles, area_resample, row_bands
 from ltmstore.stages.by_light import by_light_name
 from ltmstore.stages.relight import disk_light, relight
 
@@ -74,6 +78,7 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
           "/viewer.js": ("viewer.js", "text/javascript; charset=utf-8"),
           "/viewer.css": ("viewer.css", "text/css; charset=utf-8")}
+START_CHECK = 64  # ltm view's start relights a square of this side at the centre: fails early
 DISK_EDGE = 0.98  # far-light stores: (lx, ly) kept inside this radius (a light above the horizon)
 CACHED_BYTES = 32 * 2**20  # variables up to this size are held in memory
 FAR_AREA_SAMPLES = 5  # directions per axis of a far-light area light's square grid
@@ -140,7 +145,10 @@ class Viewer:
             self.views = {d: [float(v) for v in acq["view_plane"][d]] for d in (P, Q)}
         self._lock = threading.Lock()
         self.tiles = RelitTiles(self.ds, self.transfer, self._lock)
-        self.render_linear(self.light_at(0.0, 0.0))  # reads the store: fails early
+        self.width, self.height = int(self.ds.sizes["x"]), int(self.ds.sizes["y"])
+        w, h = min(START_CHECK, self.width), min(START_CHECK, self.height)
+        centre = ((self.width - w) // 2, (self.height - h) // 2, w, h)
+        self.render_linear(self.light_at(0.0, 0.0), centre)  # reads the store: fails early
 
     # -- the pointer and the light ---------------------------------------------------------
 
@@ -174,8 +182,13 @@ class Viewer:
 
     # -- images ----------------------------------------------------------------------------
 
-    def render_linear(self, light: Light) -> tuple[np.ndarray, list[str]]:
-        """The linear image ``(y, x[, color])`` under ``light`` and the warnings it raised."""
+    def render_linear(self, light: Light, region: tuple[int, int, int, int] | None = None,
+                      size: tuple[int, int] | None = None) -> tuple[np.ndarray, list[str]]:
+        """The linear image ``(y, x[, color])`` under ``light`` and the warnings it raised: of
+        ``region (x, y, w, h)`` (default: the whole image) at ``size (w, h)`` (default: the
+        region's), computed a band of rows at a time and area-averaged."""
+        x, y, w, h = region or (0, 0, self.width, self.height)
+        size = size or (w, h)
         with self._lock, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             if self.far and light.radius > 0:
@@ -184,16 +197,23 @@ class Viewer:
                 lights = ([(light.r, light.s)] if self.far or light.radius == 0 else
                           disk_light(self.ds[LTM], (light.r, light.s), light.radius))
                 image = relight(self.ds, lights, view=light.view).sum("light")
-            values = image.values
-        return values, sorted({str(w.message) for w in caught})
+            image = image.transpose("y", "x", ...)
+            chunks = image.chunks[0] if image.chunks else (self.height,)
+            parts = [area_resample(image.isel(y=rows, x=slice(x, x + w)).values, width=size[0])
+                     for rows in row_bands(chunks, y, y + h, w)]
+        return area_resample(np.concatenate(parts), height=size[1]), sorted(
+            {str(w.message) for w in caught})
 
-    def render_png(self, light: Light, ev: float | None = 0.0) -> tuple[bytes, list[str]]:
+    def render_png(self, light: Light, ev: float | None = 0.0,
+                   region: tuple[int, int, int, int] | None = None,
+                   size: tuple[int, int] | None = None) -> tuple[bytes, list[str]]:
         """PNG bytes of ``light`` as ``ltm relight`` writes them: at the capture's exposure
         ``ev`` stops brighter (default 0: photometric), or with ``ev`` None scaled so that the
-        image's brightest 0.5 % clip (``--exposure auto``)."""
+        image's brightest 0.5 % clip (``--exposure auto``); ``region`` and ``size`` as
+        :meth:`render_linear` takes them."""
         exposure, stops = check_exposure(AUTO if ev is None else CAPTURE,
                                          0.0 if ev is None else ev)
-        values, notes = self.render_linear(light)
+        values, notes = self.render_linear(light, region, size)
         code = encode_images(values[None], self.transfer, exposure=exposure, ev=stops)[0]
         return png(code), notes
 
@@ -242,7 +262,7 @@ class Viewer:
         ltm = self.ds[LTM]
         return {
             "store": self.path.name, "far": self.far,
-            "width": int(self.ds.sizes["x"]), "height": int(self.ds.sizes["y"]),
+            "width": self.width, "height": self.height,
             "lattice": [int(ltm.sizes["r"]), int(ltm.sizes["s"])],
             "plane": {"r": list(self.plane.r), "s": list(self.plane.s),
                       "height": self.plane.height},
@@ -273,8 +293,9 @@ def png(code: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def parse_query(viewer: Viewer, query: str) -> tuple[Light, float | None]:
-    """The light and exposure of a ``/relight`` query string."""
+def parse_query(viewer: Viewer, query: str) -> tuple[Light, float | None, tuple | None,
+                                                      tuple | None]:
+    """The light, exposure, region and size of a ``/relight`` query string."""
     q = {k: v[-1] for k, v in parse_qs(query).items()}
     u, = iiif.finite_numbers(q.get("u", "0"), "u", (1,))
     v, = iiif.finite_numbers(q.get("v", "0"), "v", (1,))
@@ -283,7 +304,27 @@ def parse_query(viewer: Viewer, query: str) -> tuple[Light, float | None]:
     ev = None if q.get("ev") == AUTO else iiif.finite_numbers(q.get("ev", "0"), "ev", (1,))[0]
     if ev is not None:
         check_exposure(CAPTURE, ev)  # a finite number of stops within EV_LIMIT, else a 400
-    return viewer.light_at(u, v, radius, view), ev
+    region = size = None
+    if "region" in q:
+        region = whole_numbers(q["region"], "region", 4)
+        x, y, w, h = region
+        if w < 1 or h < 1 or x + w > viewer.width or y + h > viewer.height:
+            raise LtmError(f"region {q['region']!r} must lie in the {viewer.width}x"
+                           f"{viewer.height} px image, at least 1 px wide and high")
+    if "size" in q:
+        size = whole_numbers(q["size"], "size", 2)
+        w, h = region[2:] if region else (viewer.width, viewer.height)
+        if not (1 <= size[0] <= w and 1 <= size[1] <= h):
+            raise LtmError(f"size {q['size']!r} must be from 1x1 to the region's {w}x{h} px")
+    return viewer.light_at(u, v, radius, view), ev, region, size
+
+
+def whole_numbers(text: str, what: str, count: int) -> tuple[int, ...]:
+    """``count`` comma-separated whole numbers, none negative, else a :class:`LtmError`."""
+    values = iiif.finite_numbers(text, what, (count,))
+    if not all(v == int(v) and v >= 0 for v in values):
+        raise LtmError(f"{what} {text!r} must be {count} whole numbers, none negative")
+    return tuple(int(v) for v in values)
 
 
 class Handler(BaseHTTPRequestHandler):
@@ -308,9 +349,9 @@ class Handler(BaseHTTPRequestHandler):
                 return self._send(HTTPStatus.OK, json.dumps(viewer.info()).encode(),
                                   "application/json")
             if url.path == "/relight":
-                light, ev = parse_query(viewer, url.query)
+                light, ev, region, size = parse_query(viewer, url.query)
                 start = time.perf_counter()
-                body, notes = viewer.render_png(light, ev)
+                body, notes = viewer.render_png(light, ev, region, size)
                 headers = {"X-Ltm-Light": json.dumps(light.to_json()),
                            "X-Ltm-Render-Ms": f"{1000 * (time.perf_counter() - start):.1f}"}
                 headers.update(_noted(notes))

@@ -28,7 +28,7 @@ PIXELS_JS = """(() => {
           data: Array.from(g.getImageData(0, 0, c.width, c.height).data)};
 })()"""
 
-RECT_JS = "JSON.parse(JSON.stringify(document.getElementById('image').getBoundingClientRect()))"
+RECT_JS = "JSON.parse(JSON.stringify(document.getElementById('stage').getBoundingClientRect()))"
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -135,16 +135,77 @@ def test_zoom_and_pan_keep_the_light_under_the_pointer(served):
         zoomed = browser.wait_for(f"(() => {{ const r = {RECT_JS}; "
                                   f"return r.width > {1.5 * before['width']} && r; }})()")
         assert zoomed["left"] + zoomed["width"] / 2 == pytest.approx(x, abs=1)
-        sent = browser.evaluate("window.ltmView.requests")
+        sent = browser.evaluate("window.ltmView.last.light")
         for kind, dx in (("mousePressed", 0), ("mouseMoved", 40), ("mouseReleased", 40)):
             browser.call("Input.dispatchMouseEvent", type=kind, x=x + dx, y=y, button="left",
                          buttons=1 if kind != "mouseReleased" else 0, clickCount=1)
         panned = browser.wait_for(f"(() => {{ const r = {RECT_JS}; "
                                   f"return r.left > {zoomed['left'] + 39} && r; }})()")
         assert panned["left"] == pytest.approx(zoomed["left"] + 40, abs=1)
-        assert browser.evaluate("window.ltmView.requests") == sent  # the drag moved no light
+        # the drag moved no light (the page may ask again for what is now on the screen)
+        assert browser.wait_for("!window.ltmView.inflight && window.ltmView.last.light") == sent
         light = move_light(browser, -0.2, 0.1)
         assert (light["r"], light["s"]) == pytest.approx((-0.04, 0.02), abs=0.002)
+
+
+def test_zoomed_in_the_page_asks_for_what_is_on_the_screen(served, small_store):
+    """Zoomed in, the page asks for the part of the image in the viewport only, and shows it
+    where it lies: that region of ``ltm relight``'s image, pixel for pixel."""
+    _, url = served
+    with Browser(600, 400) as browser:
+        browser.goto(url)
+        browser.wait_for("window.ltmView.ready")
+        rect = browser.evaluate(RECT_JS)
+        x, y = rect["left"] + rect["width"] / 2, rect["top"] + rect["height"] / 2
+        browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=x, y=y, deltaX=0,
+                     deltaY=-800)
+        browser.wait_for(f"{RECT_JS}.width > {3 * rect['width']}")
+        light = move_light(browser, 0.05, -0.05)
+        region = browser.evaluate("window.ltmView.last.region")
+        x0, y0, w, h = region
+        assert 6 <= w <= 16 and 6 <= h <= 16 and x0 > 0 and y0 > 0, region  # 32 x 32 whole
+        shown = page_pixels(browser)
+        expected = cli_relight(small_store, (light["r"], light["s"]))[y0:y0 + h, x0:x0 + w]
+        assert shown.shape == expected.shape and psnr(shown, expected) == float("inf")
+        placed = browser.evaluate("JSON.parse(JSON.stringify(document.getElementById("
+                                  "'image').getBoundingClientRect()))")
+        stage = browser.evaluate(RECT_JS)
+        scale = stage["width"] / 32
+        assert placed["left"] == pytest.approx(stage["left"] + x0 * scale, abs=1)
+        assert placed["width"] == pytest.approx(w * scale, abs=1)
+
+
+def test_a_region_at_a_smaller_size_is_area_averaged_and_bad_ones_refused(served,
+                                                                          small_store):
+    """``region`` and ``size``: the region relit and area-averaged in linear light, then
+    encoded; a region outside the image, an upscaling size or a fraction: 400, one line."""
+    import urllib.error
+    import urllib.request
+
+    _, url = served
+
+    def get(query: str) -> tuple[int, bytes]:
+        try:
+            with urllib.request.urlopen(f"{url}relight?{query}", timeout=60) as resp:
+                return resp.status, resp.read()
+        except urllib.error.HTTPError as exc:
+            return exc.code, exc.read()
+
+    status, body = get("u=0.5&v=-0.25&region=8,4,16,24&size=8,12")
+    assert status == 200
+    ds = open_store(small_store)
+    linear = relight(ds, [(0.1, -0.05)]).sum("light").values[4:28, 8:24]
+    averaged = linear.reshape(12, 2, 8, 2, -1).mean(axis=(1, 3))
+    expected = encode_images(averaged[None], ds.attrs["acquisition"].get("transfer", "srgb"))[0]
+    shown = np.asarray(Image.open(io.BytesIO(body)))
+    assert shown.shape == (12, 8, 3) and np.abs(shown.astype(int) - expected).max() <= 1
+    for query, words in (("region=30,0,4,4", "must lie in the 32x32 px image"),
+                         ("region=0,0,0,4", "must lie in the 32x32 px image"),
+                         ("region=0,0,4.5,4", "must be 4 whole numbers"),
+                         ("region=0,0,8,8&size=16,16", "to the region's 8x8 px"),
+                         ("size=0,4", "from 1x1 to the region's 32x32 px")):
+        status, body = get(f"u=0&v=0&{query}")
+        assert status == 400 and words in body.decode() and "\n" not in body.decode(), query
 
 
 def test_view_stops_cleanly_on_ctrl_c(served):

@@ -1,5 +1,6 @@
 // ltm view: the light follows the pointer. One /relight request in flight at a time; when it
-// returns, the latest pointer position (if it moved) is sent next.
+// returns, the latest pointer position (if it moved) is sent next. Each request asks for the
+// part of the image on the screen at the screen's resolution (never more than the image's).
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -21,7 +22,27 @@ function query() {
   if (mode() === "area") p.set("radius", $("radius").value);
   if (state.info.views) p.set("view", `${viewValue("p")},${viewValue("q")}`);
   p.set("ev", $("auto").checked ? "auto" : $("ev").value);
+  const shown = onScreen();
+  p.set("region", shown.region.join(","));
+  p.set("size", shown.size.join(","));
   return p.toString();
+}
+
+// The image's pixels in the viewport, whole pixels from the top left, and the size that fills
+// the screen's pixels there (the region's own when zoomed in further).
+function onScreen() {
+  const vp = $("viewport").getBoundingClientRect();
+  const { width, height } = state.info;
+  const x0 = Math.max(0, Math.floor(-state.tx / state.k));
+  const y0 = Math.max(0, Math.floor(-state.ty / state.k));
+  const x1 = Math.min(width, Math.max(x0 + 1, Math.ceil((vp.width - state.tx) / state.k)));
+  const y1 = Math.min(height, Math.max(y0 + 1, Math.ceil((vp.height - state.ty) / state.k)));
+  const x = Math.min(x0, width - 1), y = Math.min(y0, height - 1);
+  const w = Math.max(1, x1 - x), h = Math.max(1, y1 - y);
+  const screen = state.k * (window.devicePixelRatio || 1);
+  return { region: [x, y, w, h],
+           size: [Math.min(w, Math.max(1, Math.ceil(w * screen))),
+                  Math.min(h, Math.max(1, Math.ceil(h * screen)))] };
 }
 
 function request() {
@@ -41,13 +62,16 @@ async function send(q) {
     const img = $("image");
     img.src = url;
     await img.decode();
+    const region = new URLSearchParams(q).get("region").split(",").map(Number);
+    Object.assign(img.style, { left: `${region[0]}px`, top: `${region[1]}px`,
+                               width: `${region[2]}px`, height: `${region[3]}px` });
     if (state.url) URL.revokeObjectURL(state.url);
     state.url = url;
     const ms = performance.now() - t0;
     const light = JSON.parse(resp.headers.get("X-Ltm-Light"));
     showLight(light, ms);
     $("warning").textContent = resp.headers.get("X-Ltm-Warning") || "";
-    Object.assign(window.ltmView, { last: { query: q, light, ms,
+    Object.assign(window.ltmView, { last: { query: q, light, ms, region,
       render_ms: Number(resp.headers.get("X-Ltm-Render-Ms")) }, ready: true });
     window.ltmView.latencies.push(ms);
     window.ltmView.requests += 1;
@@ -76,6 +100,7 @@ function showLight(light, ms) {
 function apply() {
   $("stage").style.transform = `translate(${state.tx}px, ${state.ty}px) scale(${state.k})`;
   $("viewport").style.imageRendering = state.k > 2 ? "pixelated" : "auto";
+  request();  // what is on the screen changed
 }
 
 function fit() {
@@ -99,7 +124,7 @@ function zoom(e) {
 }
 
 function pointerLight(e) {
-  const rect = $("image").getBoundingClientRect();
+  const rect = $("stage").getBoundingClientRect();
   const clip = (x) => Math.min(Math.max(x, -1), 1);
   state.u = clip(2 * (e.clientX - rect.left) / rect.width - 1);
   state.v = clip(1 - 2 * (e.clientY - rect.top) / rect.height);
@@ -180,7 +205,6 @@ async function start() {
   showRadius();
   bind();
   fit();
-  request();
 }
 
 start();
