@@ -35,7 +35,7 @@ WAIT = ("(() => {{ const v = window.ltmView; return !v.inflight && v.requests > 
 
 def move(browser: Browser, u: float, v: float) -> None:
     rect = browser.evaluate("JSON.parse(JSON.stringify("
-                            "document.getElementById('image').getBoundingClientRect()))")
+                            "document.getElementById('stage').getBoundingClientRect()))")
     browser.move_mouse(rect["left"] + (u + 1) / 2 * rect["width"],
                        rect["top"] + (1 - v) / 2 * rect["height"])
 

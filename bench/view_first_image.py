@@ -1,0 +1,126 @@
+"""``ltm view`` on a huge store: from the command to the first relit image in the browser, and
+each new light at the fit and zoomed in to one image pixel per screen pixel.
+
+Run: ``python bench/view_first_image.py STORE [--repeats 3] [--old TREE] [--out DIR]``.
+Starts ``ltm view STORE`` as a real process (with ``--old``, the same command of an earlier
+tree, imported from TREE ahead of the editable install: old first), loads its page in headless
+Chromium (1000 x 700 window; the DevTools driver of ``tests/browser.py``) and records:
+
+* ``start_s``: from the command to its URL line (the server opening the store);
+* ``first_image_s``: from loading the page to its first image shown (``ltmView.ready``);
+* ``fit_ms`` and ``zoomed_ms``: the page's round trip (request sent to image decoded) for
+  ``--repeats`` new lights, with the whole image fitted to the window and zoomed about its
+  centre to at least one image pixel per screen pixel; medians;
+* ``fit_bytes`` and ``zoomed_bytes``: the PNG bytes each of those images sent (medians).
+
+Writes ``view_first_image.json`` into ``--out`` with the load average before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).parent))
+from browser import Browser  # noqa: E402
+from rti_speed import load  # noqa: E402
+
+from ltmstore.core.provenance import commit  # noqa: E402
+
+STAGE = "JSON.parse(JSON.stringify(document.getElementById('stage').getBoundingClientRect()))"
+LAST = ("(() => {{ const v = window.ltmView; return !v.inflight && v.requests > {n} && "
+        "v.last; }})()")
+BYTES = ("performance.getEntriesByType('resource').filter(e => e.name.includes('/relight?'))"
+         ".map(e => e.encodedBodySize)")
+# the ``ltm`` entry point of a tree's code: the editable install's finder would import this one
+ENTRY = ("import sys; sys.meta_path[:] = [f for f in sys.meta_path if 'Editable' not in "
+         "getattr(f, '__name__', '')]; sys.path.insert(0, {tree!r}); "
+         "from ltmstore.cli import main; sys.exit(main())")
+LIGHTS = [(0.3, 0.2), (-0.25, 0.35), (0.1, -0.4), (0.45, -0.05), (-0.35, -0.3)]
+
+
+def new_light(browser: Browser, u: float, v: float) -> tuple[float, int]:
+    """Move the pointer to ``(u, v)`` over the image; the round trip (ms) and PNG bytes."""
+    n = browser.evaluate("window.ltmView.requests")
+    rect = browser.evaluate(STAGE)
+    vp = browser.evaluate("JSON.parse(JSON.stringify(document.getElementById('viewport')"
+                          ".getBoundingClientRect()))")
+    x = min(max(rect["left"] + (u + 1) / 2 * rect["width"], vp["left"] + 1), vp["right"] - 1)
+    y = min(max(rect["top"] + (1 - v) / 2 * rect["height"], vp["top"] + 1), vp["bottom"] - 1)
+    browser.move_mouse(x, y)
+    last = browser.wait_for(LAST.format(n=n), timeout=1800)
+    return last["ms"], browser.evaluate(BYTES)[-1]
+
+
+def zoom_to_pixels(browser: Browser, width: int) -> None:
+    """Wheel about the viewport's centre until one image pixel covers a screen pixel."""
+    vp = browser.evaluate("JSON.parse(JSON.stringify(document.getElementById('viewport')"
+                          ".getBoundingClientRect()))")
+    x, y = (vp["left"] + vp["right"]) / 2, (vp["top"] + vp["bottom"]) / 2
+    browser.evaluate("document.getElementById('hold').checked = true")  # the light stays
+    while browser.evaluate(STAGE)["width"] < width:
+        browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=x, y=y, deltaX=0,
+                     deltaY=-400)
+    browser.wait_for("!window.ltmView.inflight", timeout=1800)
+    browser.evaluate("document.getElementById('hold').checked = false")
+
+
+def measure(store: str, repeats: int, tree: str) -> dict:
+    """One run of the page on ``store`` with the code of ``tree``."""
+    start = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-c", ENTRY.format(tree=tree), "view", store],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        url = line.split(" at ")[1].split()[0]
+        result = {"start_s": time.perf_counter() - start}
+        with Browser(1000, 700, timeout=60) as browser:
+            t0 = time.perf_counter()
+            browser.goto(url)
+            browser.wait_for("window.ltmView.ready", timeout=1800)
+            result["first_image_s"] = time.perf_counter() - t0
+            result["first_image_bytes"] = browser.evaluate(BYTES)[-1]
+            width = browser.evaluate("fetch('info').then(r => r.json()).then(i => i.width)")
+            fit = [new_light(browser, *light) for light in LIGHTS[:repeats]]
+            zoom_to_pixels(browser, width)
+            zoomed = [new_light(browser, -u, -v) for u, v in LIGHTS[:repeats]]
+    finally:
+        proc.terminate()
+        proc.wait()
+    for key, runs in (("fit", fit), ("zoomed", zoomed)):
+        result[f"{key}_ms"] = statistics.median(ms for ms, _ in runs)
+        result[f"{key}_bytes"] = statistics.median(size for _, size in runs)
+        result[f"{key}_runs"] = runs
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("store")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--old", default=None, help="a tree of earlier code (git worktree)")
+    parser.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    args = parser.parse_args()
+    here = str(Path(__file__).resolve().parents[1])
+    trees = ([("old", str(Path(args.old).resolve()))] if args.old else []) + [("this", here)]
+    result = {"command": "python bench/view_first_image.py " + " ".join(sys.argv[1:]),
+              "commit": commit(), "cores": os.cpu_count(), "load_start": load()}
+    for label, tree in trees:
+        result[label] = measure(args.store, args.repeats, tree)
+        print(label, json.dumps({k: v for k, v in result[label].items()
+                                 if not k.endswith("runs")}), flush=True)
+    result["load_end"] = load()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "view_first_image.json").write_text(json.dumps(result, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
