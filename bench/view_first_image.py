@@ -3,7 +3,7 @@ each new light at the fit and zoomed in to one image pixel per screen pixel.
 
 Run: ``python bench/view_first_image.py STORE [--repeats 3] [--old TREE] [--out DIR]``.
 Starts ``ltm view STORE`` as a real process (with ``--old``, the same command of an earlier
-tree, imported from TREE ahead of the editable install: old first), loads its page in headless
+tree through ``PYTHONPATH=TREE``: old first), loads its page in headless
 Chromium (1000 x 700 window; the DevTools driver of ``tests/browser.py``) and records:
 
 * ``start_s``: from the command to its URL line (the server opening the store);
@@ -30,7 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 sys.path.insert(0, str(Path(__file__).parent))
 from browser import Browser  # noqa: E402
-from rti_speed import load  # noqa: E402
+from rti_speed import load, ltm_command  # noqa: E402
 
 from ltmstore.core.provenance import commit  # noqa: E402
 
@@ -39,10 +39,6 @@ LAST = ("(() => {{ const v = window.ltmView; return !v.inflight && v.requests > 
         "v.last; }})()")
 BYTES = ("performance.getEntriesByType('resource').filter(e => e.name.includes('/relight?'))"
          ".map(e => e.encodedBodySize)")
-# the ``ltm`` entry point of a tree's code: the editable install's finder would import this one
-ENTRY = ("import sys; sys.meta_path[:] = [f for f in sys.meta_path if 'Editable' not in "
-         "getattr(f, '__name__', '')]; sys.path.insert(0, {tree!r}); "
-         "from ltmstore.cli import main; sys.exit(main())")
 LIGHTS = [(0.3, 0.2), (-0.25, 0.35), (0.1, -0.4), (0.45, -0.05), (-0.35, -0.3)]
 
 
@@ -72,11 +68,11 @@ def zoom_to_pixels(browser: Browser, width: int) -> None:
     browser.evaluate("document.getElementById('hold').checked = false")
 
 
-def measure(store: str, repeats: int, tree: str) -> dict:
-    """One run of the page on ``store`` with the code of ``tree``."""
+def measure(store: str, repeats: int, env: dict) -> dict:
+    """One run of the page on ``store`` with ``env`` (an earlier tree's ``PYTHONPATH``)."""
     start = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", ENTRY.format(tree=tree), "view", store],
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([*ltm_command(), "view", store], stdout=subprocess.PIPE, text=True,
+                            env=env)
     try:
         line = proc.stdout.readline()
         url = line.split(" at ")[1].split()[0]
@@ -108,12 +104,12 @@ def main() -> None:
     parser.add_argument("--old", default=None, help="a tree of earlier code (git worktree)")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results"))
     args = parser.parse_args()
-    here = str(Path(__file__).resolve().parents[1])
-    trees = ([("old", str(Path(args.old).resolve()))] if args.old else []) + [("this", here)]
+    trees = ([("old", str(Path(args.old).resolve()))] if args.old else []) + [("this", None)]
     result = {"command": "python bench/view_first_image.py " + " ".join(sys.argv[1:]),
               "commit": commit(), "cores": os.cpu_count(), "load_start": load()}
     for label, tree in trees:
-        result[label] = measure(args.store, args.repeats, tree)
+        env = dict(os.environ, **({"PYTHONPATH": tree} if tree else {}))
+        result[label] = measure(args.store, args.repeats, env)
         print(label, json.dumps({k: v for k, v in result[label].items()
                                  if not k.endswith("runs")}), flush=True)
     result["load_end"] = load()
