@@ -88,6 +88,18 @@ def row_bands(chunks: tuple[int, ...], start: int, stop: int,
     return [*bands, slice(first, stop)]
 
 
+def region_values(image: xr.DataArray, region: tuple[int, int, int, int],
+                  size: tuple[int, int]) -> np.ndarray:
+    """Linear values ``(h, w[, color])`` of ``region (x, y, w, h)`` of a lazy ``image (y,
+    x[, color])`` at ``size (w, h)``: computed a band of rows at a time (:func:`row_bands`),
+    reading the region's chunks only, and area-averaged."""
+    x, y, w, h = region
+    chunks = image.chunks[0] if image.chunks else (image.sizes["y"],)
+    parts = [area_resample(image.isel(y=rows, x=slice(x, x + w)).values, width=size[0])
+             for rows in row_bands(chunks, y, y + h, w)]
+    return area_resample(np.concatenate(parts), height=size[1])
+
+
 def encode_png(code: np.ndarray) -> bytes:
     """A PNG (compression level 1, as ``/relight``'s) of 8-bit code values."""
     from PIL import Image
@@ -152,11 +164,7 @@ class RelitTiles:
         reading the region's chunks only, and relight's warnings."""
         with self._lock:
             image, notes = self.image(light)
-            x, y, w, h = region
-            chunks = image.chunks[0] if image.chunks else (self.height,)
-            parts = [area_resample(image.isel(y=rows, x=slice(x, x + w)).values, width=size[0])
-                     for rows in row_bands(chunks, y, y + h, w)]
-        return area_resample(np.concatenate(parts), height=size[1]), notes
+            return region_values(image, region, size), notes
 
     def tile(self, request: TileRequest) -> tuple[bytes, list[str]]:
         """The encoded tile of ``request`` (PNG or JPEG) and relight's warnings."""

@@ -70,7 +70,7 @@ from ltmstore.core.lights import FAR, light_kind
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import AUTO, CAPTURE, check_exposure, encode_images
 from ltmstore.share import iiif
-from ltmstore.share.relit_tiles import RelitTiles, area_resample, row_bands
+from ltmstore.share.relit_tiles import RelitTiles, region_values
 from ltmstore.stages.by_light import by_light_name
 from ltmstore.stages.relight import disk_light, relight
 
@@ -197,12 +197,8 @@ class Viewer:
                 lights = ([(light.r, light.s)] if self.far or light.radius == 0 else
                           disk_light(self.ds[LTM], (light.r, light.s), light.radius))
                 image = relight(self.ds, lights, view=light.view).sum("light")
-            image = image.transpose("y", "x", ...)
-            chunks = image.chunks[0] if image.chunks else (self.height,)
-            parts = [area_resample(image.isel(y=rows, x=slice(x, x + w)).values, width=size[0])
-                     for rows in row_bands(chunks, y, y + h, w)]
-        return area_resample(np.concatenate(parts), height=size[1]), sorted(
-            {str(w.message) for w in caught})
+            values = region_values(image.transpose("y", "x", ...), (x, y, w, h), size)
+        return values, sorted({str(w.message) for w in caught})
 
     def render_png(self, light: Light, ev: float | None = 0.0,
                    region: tuple[int, int, int, int] | None = None,
