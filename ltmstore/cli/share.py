@@ -165,7 +165,9 @@ def register_view(sub) -> None:
                        "pointer",
                        description="Serve a page on this machine only (127.0.0.1) where the "
                        "store is relit with the light under the pointer: zoom and pan, point or "
-                       "area light, the view of a 6D store, the expected_error map. Prints the "
+                       "area light, the view of a 6D store, the expected_error map. The page "
+                       "asks for the part of the image on the screen at the screen's "
+                       "resolution, so a huge store is read where it is shown. Prints the "
                        "URL; Ctrl-C stops. Each light is also an IIIF Image API 3.0 image "
                        "service any tiled viewer opens: URL/iiif/LIGHT/info.json, tiles "
                        "URL/iiif/LIGHT/REGION/SIZE/0/default.png|jpg, LIGHT being R,S (as "
