@@ -38,7 +38,7 @@ import xarray as xr
 from ltmstore.core.transfer import CAPTURE, encode_images, exposure_gain
 from ltmstore.share import iiif
 from ltmstore.share.atomic import atomic_output
-from ltmstore.share.relit_tiles import area_resample, encode_jpeg
+from ltmstore.share.relit_tiles import area_resample, encode_jpeg, region_values
 from ltmstore.share.tiles import DZI, tile_span
 
 LAYOUTS = ("iiif", "deepzoom")
@@ -182,7 +182,9 @@ def write_folders(images: xr.DataArray, outputs: list[Path], *, layout: str, tra
     :func:`ltmstore.share.atomic.atomic_output` takes them. Yields each folder and its
     writer's summary.
     """
-    linear = [image.transpose("y", "x", ...).values for image in images]
+    whole = (0, 0, images.sizes["x"], images.sizes["y"])
+    linear = [region_values(image.transpose("y", "x", ...), whole, whole[2:])  # in row bands
+              for image in images]
     gain = exposure_gain(np.stack(linear), exposure) if exposure != CAPTURE else 1.0
     for out, values in zip(outputs, linear, strict=True):
         with atomic_output(out, overwrite=overwrite, folder=True, inputs=inputs) as tmp:
