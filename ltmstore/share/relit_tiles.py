@@ -23,6 +23,7 @@ import io
 import threading
 import warnings
 from collections import OrderedDict
+from collections.abc import Callable
 
 import numpy as np
 import xarray as xr
@@ -88,15 +89,24 @@ def row_bands(chunks: tuple[int, ...], start: int, stop: int,
     return [*bands, slice(first, stop)]
 
 
+class Superseded(Exception):
+    """A computation given up between two bands: a newer request wants the result instead."""
+
+
 def region_values(image: xr.DataArray, region: tuple[int, int, int, int],
-                  size: tuple[int, int]) -> np.ndarray:
+                  size: tuple[int, int],
+                  superseded: Callable[[], bool] | None = None) -> np.ndarray:
     """Linear values ``(h, w[, color])`` of ``region (x, y, w, h)`` of a lazy ``image (y,
     x[, color])`` at ``size (w, h)``: computed a band of rows at a time (:func:`row_bands`),
-    reading the region's chunks only, and area-averaged."""
+    reading the region's chunks only, and area-averaged. :class:`Superseded` is raised
+    before a band where ``superseded()`` is true."""
     x, y, w, h = region
     chunks = image.chunks[0] if image.chunks else (image.sizes["y"],)
-    parts = [area_resample(image.isel(y=rows, x=slice(x, x + w)).values, width=size[0])
-             for rows in row_bands(chunks, y, y + h, w)]
+    parts = []
+    for rows in row_bands(chunks, y, y + h, w):
+        if superseded is not None and superseded():
+            raise Superseded
+        parts.append(area_resample(image.isel(y=rows, x=slice(x, x + w)).values, width=size[0]))
     return area_resample(np.concatenate(parts), height=size[1])
 
 

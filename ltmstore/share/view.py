@@ -6,11 +6,15 @@ it for relit images, one request in flight at a time:
 
 ``GET /info``
     The store's shape, light kind, plane or disk, view plane and overlays, as JSON.
-``GET /relight?u=U&v=V[&radius=R][&view=P,Q][&ev=E|auto][&region=X,Y,W,H][&size=WS,HS]``
+``GET /relight?u=U&v=V[&radius=R][&view=P,Q][&ev=E|auto][&region=X,Y,W,H][&size=WS,HS][&preview=1]``
     A PNG of the store relit by :func:`ltmstore.stages.relight.relight`: of the whole image,
     or of ``region`` (pixels from the top left) only, area-averaged in linear light to
     ``size`` (at most the region's own; default it); the page asks for what is on the screen
-    at the screen's resolution, so a huge store is read where it is shown. ``U, V`` in
+    at the screen's resolution, so a huge store is read where it is shown. ``preview=1``
+    relights every n-th pixel only where the size is at most half the region (``X-Ltm-Preview:
+    1`` says it did): the page shows it first, then asks the same without, with ``yield=1``:
+    such a request is given up between two bands of rows once a newer ``/relight`` arrives
+    (409), so the pointer's next light does not wait for a whole picture nobody wants. ``U, V`` in
     ``[-1, 1]`` are the pointer over the image (``U`` right, ``V`` up): for a near-light store the
     plane rectangle spans the image, for a far-light store the unit disk of ``(lx, ly)`` does
     (a direction). ``R`` (same units, 0: a point light) makes an area light: a uniform disk on the
@@ -70,7 +74,7 @@ from ltmstore.core.lights import FAR, light_kind
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import AUTO, CAPTURE, check_exposure, encode_images
 from ltmstore.share import iiif
-from ltmstore.share.relit_tiles import RelitTiles, region_values
+from ltmstore.share.relit_tiles import RelitTiles, Superseded, area_resample, region_values
 from ltmstore.stages.by_light import by_light_name
 from ltmstore.stages.relight import disk_light, relight
 
@@ -144,6 +148,8 @@ class Viewer:
         if self.views and acq.get("view_plane"):
             self.views = {d: [float(v) for v in acq["view_plane"][d]] for d in (P, Q)}
         self._lock = threading.Lock()
+        self._newest = 0  # the number of the newest /relight request
+        self._ticket_lock = threading.Lock()
         self.tiles = RelitTiles(self.ds, self.transfer, self._lock)
         self.width, self.height = int(self.ds.sizes["x"]), int(self.ds.sizes["y"])
         w, h = min(START_CHECK, self.width), min(START_CHECK, self.height)
@@ -182,36 +188,56 @@ class Viewer:
 
     # -- images ----------------------------------------------------------------------------
 
+    def ticket(self) -> int:
+        """A number for a new request, the newest from now on (see :meth:`render_linear`)."""
+        with self._ticket_lock:
+            self._newest += 1
+            return self._newest
+
     def render_linear(self, light: Light, region: tuple[int, int, int, int] | None = None,
-                      size: tuple[int, int] | None = None) -> tuple[np.ndarray, list[str]]:
-        """The linear image ``(y, x[, color])`` under ``light`` and the warnings it raised: of
-        ``region (x, y, w, h)`` (default: the whole image) at ``size (w, h)`` (default: the
-        region's), computed a band of rows at a time and area-averaged."""
+                      size: tuple[int, int] | None = None, preview: bool = False,
+                      ticket: int | None = None) -> tuple[np.ndarray, list[str], bool]:
+        """The linear image ``(y, x[, color])`` under ``light``, the warnings it raised and
+        whether it is a preview: of ``region (x, y, w, h)`` (default: the whole image) at
+        ``size (w, h)`` (default: the region's), computed a band of rows at a time and
+        area-averaged; with ``preview``, where the region holds at least twice the size's
+        pixels along each axis, relit at every ``step``-th pixel only (point samples, about
+        ``step**2`` times cheaper) and then averaged to ``size``. With a ``ticket``
+        (:meth:`ticket`), :class:`~ltmstore.share.relit_tiles.Superseded` is raised between
+        two bands once a newer ticket was taken."""
         x, y, w, h = region or (0, 0, self.width, self.height)
         size = size or (w, h)
+        step = min(w // size[0], h // size[1]) if preview else 1
+        ds = self.ds if step < 2 else self.ds.isel(x=slice(x + step // 2, x + w, step),
+                                                   y=slice(y + step // 2, y + h, step))
         with self._lock, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             if self.far and light.radius > 0:
-                image = relight(self.ds, self._far_area(light)).mean("light")
+                image = relight(ds, self._far_area(light)).mean("light")
             else:
                 lights = ([(light.r, light.s)] if self.far or light.radius == 0 else
-                          disk_light(self.ds[LTM], (light.r, light.s), light.radius))
-                image = relight(self.ds, lights, view=light.view).sum("light")
-            values = region_values(image.transpose("y", "x", ...), (x, y, w, h), size)
-        return values, sorted({str(w.message) for w in caught})
+                          disk_light(ds[LTM], (light.r, light.s), light.radius))
+                image = relight(ds, lights, view=light.view).sum("light")
+            image = image.transpose("y", "x", ...)
+            newer = None if ticket is None else (lambda: self._newest != ticket)
+            values = (region_values(image, (x, y, w, h), size, newer) if step < 2 else
+                      area_resample(image.values, width=size[0], height=size[1]))
+        return values, sorted({str(w.message) for w in caught}), step > 1
 
     def render_png(self, light: Light, ev: float | None = 0.0,
                    region: tuple[int, int, int, int] | None = None,
-                   size: tuple[int, int] | None = None) -> tuple[bytes, list[str]]:
+                   size: tuple[int, int] | None = None, preview: bool = False,
+                   ticket: int | None = None) -> tuple[bytes, list[str], bool]:
         """PNG bytes of ``light`` as ``ltm relight`` writes them: at the capture's exposure
         ``ev`` stops brighter (default 0: photometric), or with ``ev`` None scaled so that the
-        image's brightest 0.5 % clip (``--exposure auto``); ``region`` and ``size`` as
-        :meth:`render_linear` takes them."""
+        image's brightest 0.5 % clip (``--exposure auto``); ``region``, ``size``, ``preview``
+        and ``ticket`` as :meth:`render_linear` takes them; the warnings and whether it is a
+        preview."""
         exposure, stops = check_exposure(AUTO if ev is None else CAPTURE,
                                          0.0 if ev is None else ev)
-        values, notes = self.render_linear(light, region, size)
+        values, notes, previewed = self.render_linear(light, region, size, preview, ticket)
         code = encode_images(values[None], self.transfer, exposure=exposure, ev=stops)[0]
-        return png(code), notes
+        return png(code), notes, previewed
 
     def error_png(self) -> tuple[bytes, float]:
         """The ``expected_error`` map as an RGBA PNG (magma, 0 to its 99th percentile) and the
@@ -290,8 +316,9 @@ def png(code: np.ndarray) -> bytes:
 
 
 def parse_query(viewer: Viewer, query: str) -> tuple[Light, float | None, tuple | None,
-                                                      tuple | None]:
-    """The light, exposure, region and size of a ``/relight`` query string."""
+                                                      tuple | None, bool, bool]:
+    """The light, exposure, region, size, preview and yield flags of a ``/relight`` query
+    string."""
     q = {k: v[-1] for k, v in parse_qs(query).items()}
     u, = iiif.finite_numbers(q.get("u", "0"), "u", (1,))
     v, = iiif.finite_numbers(q.get("v", "0"), "v", (1,))
@@ -312,7 +339,11 @@ def parse_query(viewer: Viewer, query: str) -> tuple[Light, float | None, tuple 
         w, h = region[2:] if region else (viewer.width, viewer.height)
         if not (1 <= size[0] <= w and 1 <= size[1] <= h):
             raise LtmError(f"size {q['size']!r} must be from 1x1 to the region's {w}x{h} px")
-    return viewer.light_at(u, v, radius, view), ev, region, size
+    for flag in ("preview", "yield"):
+        if q.get(flag, "0") not in ("0", "1"):
+            raise LtmError(f"{flag} {q[flag]!r} must be 0 or 1")
+    return (viewer.light_at(u, v, radius, view), ev, region, size, q.get("preview") == "1",
+            q.get("yield") == "1")
 
 
 def whole_numbers(text: str, what: str, count: int) -> tuple[int, ...]:
@@ -345,11 +376,14 @@ class Handler(BaseHTTPRequestHandler):
                 return self._send(HTTPStatus.OK, json.dumps(viewer.info()).encode(),
                                   "application/json")
             if url.path == "/relight":
-                light, ev, region, size = parse_query(viewer, url.query)
+                light, ev, region, size, preview, yields = parse_query(viewer, url.query)
+                ticket = viewer.ticket()
                 start = time.perf_counter()
-                body, notes = viewer.render_png(light, ev, region, size)
+                body, notes, previewed = viewer.render_png(light, ev, region, size, preview,
+                                                           ticket if yields else None)
                 headers = {"X-Ltm-Light": json.dumps(light.to_json()),
-                           "X-Ltm-Render-Ms": f"{1000 * (time.perf_counter() - start):.1f}"}
+                           "X-Ltm-Render-Ms": f"{1000 * (time.perf_counter() - start):.1f}",
+                           "X-Ltm-Preview": "1" if previewed else "0"}
                 headers.update(_noted(notes))
                 return self._send(HTTPStatus.OK, body, "image/png", headers)
             if url.path.startswith(iiif.PREFIX):
@@ -360,6 +394,9 @@ class Handler(BaseHTTPRequestHandler):
                                   {"X-Ltm-Error-Max": f"{top:.6g}"})
         except iiif.Unsupported as exc:
             return self._send(HTTPStatus.NOT_IMPLEMENTED, str(exc).encode(), "text/plain")
+        except Superseded:
+            return self._send(HTTPStatus.CONFLICT, b"superseded by a newer request",
+                              "text/plain")
         except LtmError as exc:
             return self._send(HTTPStatus.BAD_REQUEST, str(exc).encode(), "text/plain")
         except ValueError as exc:  # a chunk that fails its checksum, found while reading

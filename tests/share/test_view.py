@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import signal
+from urllib.parse import parse_qs
 
 import numpy as np
 import psutil
@@ -203,9 +204,53 @@ def test_a_region_at_a_smaller_size_is_area_averaged_and_bad_ones_refused(served
                          ("region=0,0,0,4", "must lie in the 32x32 px image"),
                          ("region=0,0,4.5,4", "must be 4 whole numbers"),
                          ("region=0,0,8,8&size=16,16", "to the region's 8x8 px"),
+                         ("preview=2", "preview '2' must be 0 or 1"),
                          ("size=0,4", "from 1x1 to the region's 32x32 px")):
         status, body = get(f"u=0&v=0&{query}")
         assert status == 400 and words in body.decode() and "\n" not in body.decode(), query
+
+
+def test_zoomed_out_the_page_shows_a_preview_then_the_whole_picture(served, small_store):
+    """A window so narrow that the 32 px store is drawn at under half size: the page's first
+    image is a preview, the one after it the area-averaged picture at the screen's size."""
+    _, url = served
+    with Browser(290, 300) as browser:
+        browser.goto(url)
+        last = browser.wait_for("(() => { const v = window.ltmView; return v.ready && "
+                                "!v.inflight && v.last; })()")
+        assert browser.evaluate("window.ltmView.previews") == 1 and not last["preview"]
+        w, h = (int(v) for v in parse_qs(last["query"])["size"][0].split(","))
+        assert w <= 16 and h <= 16, (w, h)  # measured: 12 x 12
+        assert page_pixels(browser).shape == (h, w, 3)
+
+
+def test_a_preview_relights_every_nth_pixel_and_an_old_full_render_yields(served,
+                                                                           small_store):
+    """``preview=1`` where the size is a quarter of the region: the pixels at every 4th row and
+    column of ``ltm relight``'s image, said in ``X-Ltm-Preview``; a render given a ticket stops
+    (``Superseded``) once a newer ticket is taken, and answers while it is the newest."""
+    import urllib.request
+
+    from ltmstore.share.relit_tiles import Superseded
+    from ltmstore.share.view import Viewer
+
+    _, url = served
+    for preview, expected_flag in (("&preview=1", "1"), ("", "0"), ("&yield=1", "0")):
+        with urllib.request.urlopen(f"{url}relight?u=0.5&v=-0.25&region=0,0,32,32&size=8,8"
+                                    f"{preview}", timeout=60) as resp:
+            assert resp.headers["X-Ltm-Preview"] == expected_flag
+            body = resp.read()
+        if preview == "&preview=1":
+            shown = np.asarray(Image.open(io.BytesIO(body)))
+            expected = cli_relight(small_store, (0.1, -0.05))[2::4, 2::4]
+            assert psnr(shown, expected) == float("inf")
+    viewer = Viewer(small_store)
+    old, new = viewer.ticket(), viewer.ticket()
+    light = viewer.light_at(0.5, -0.25)
+    with pytest.raises(Superseded):
+        viewer.render_linear(light, ticket=old)
+    image, _, _ = viewer.render_linear(light, ticket=new)
+    assert image.shape == (32, 32, 3)
 
 
 def test_view_stops_cleanly_on_ctrl_c(served):
@@ -233,12 +278,13 @@ def test_far_light_store_maps_the_pointer_to_a_direction(tmp_path):
     viewer = Viewer(tmp_path / "s.zarr")
     light = viewer.light_at(0.3, -0.2)
     assert (light.r, light.s) == pytest.approx((0.3, -0.2))
-    body, _ = viewer.render_png(light)
+    body, _, preview = viewer.render_png(light)
+    assert not preview
     shown = np.asarray(Image.open(io.BytesIO(body)))
     assert psnr(shown, cli_relight(tmp_path / "s.zarr", (0.3, -0.2))) == float("inf")
     rim = viewer.light_at(1, 1)
     assert np.hypot(rim.r, rim.s) == pytest.approx(0.98)
-    area, _ = viewer.render_linear(viewer.light_at(0.3, -0.2, radius=0.3))
+    area, _, _ = viewer.render_linear(viewer.light_at(0.3, -0.2, radius=0.3))
     assert area.shape == (6, 5, 3)
     rng = np.random.default_rng(0)  # the mean over the cone, by random directions in it
     radius, angle = 0.3 * np.sqrt(rng.random(2000)), 2 * np.pi * rng.random(2000)
@@ -278,7 +324,7 @@ def test_an_area_light_is_a_relit_disk_light_and_an_old_store_is_named(small_sto
         viewer = Viewer(old)
     assert by_light_name("ltm") not in viewer.ds
     light = viewer.light_at(0.2, -0.3, radius=0.3)
-    image, _ = viewer.render_linear(light)
+    image, _, _ = viewer.render_linear(light)
     ds = open_store(small_store)
     expected = relight(ds, disk_light(ds["ltm"], (light.r, light.s), light.radius)).sum("light")
     np.testing.assert_allclose(image, expected.values, rtol=1e-5, atol=1e-7)

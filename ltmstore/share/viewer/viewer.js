@@ -1,13 +1,16 @@
 // ltm view: the light follows the pointer. One /relight request in flight at a time; when it
 // returns, the latest pointer position (if it moved) is sent next. Each request asks for the
-// part of the image on the screen at the screen's resolution (never more than the image's).
+// part of the image on the screen at the screen's resolution (never more than the image's),
+// first as a preview (the server relights every n-th pixel where the screen shows fewer), then,
+// if nothing newer is wanted, whole.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
 const state = { info: null, u: 0, v: 0, inflight: false, sent: null, wanted: null, url: null,
   k: 1, tx: 0, ty: 0, drag: null };
 // Read by tests and benchmarks: the last image's light and round trip, every latency (ms).
-window.ltmView = { ready: false, requests: 0, last: null, latencies: [], inflight: false };
+window.ltmView = { ready: false, requests: 0, previews: 0, last: null, latencies: [],
+  inflight: false };
 
 const mode = () => document.querySelector("input[name=mode]:checked").value;
 const fmt = (x) => Number(x).toFixed(3);
@@ -48,15 +51,18 @@ function onScreen() {
 function request() {
   if (!state.info) return;
   state.wanted = query();
-  if (!state.inflight && state.wanted !== state.sent) send(state.wanted);
+  if (!state.inflight && state.wanted !== state.sent) send(state.wanted, true);
 }
 
-async function send(q) {
+async function send(q, preview) {
   state.inflight = window.ltmView.inflight = true;
   state.sent = q;
+  let previewed = false;
   const t0 = performance.now();
   try {
-    const resp = await fetch("relight?" + q, { cache: "no-store" });
+    const resp = await fetch(`relight?${q}&${preview ? "preview" : "yield"}=1`,
+                             { cache: "no-store" });
+    if (resp.status === 409) return;  // given up for a newer light: it is sent next
     if (!resp.ok) throw new Error(await resp.text());
     const url = URL.createObjectURL(await resp.blob());
     const img = $("image");
@@ -71,15 +77,18 @@ async function send(q) {
     const light = JSON.parse(resp.headers.get("X-Ltm-Light"));
     showLight(light, ms);
     $("warning").textContent = resp.headers.get("X-Ltm-Warning") || "";
-    Object.assign(window.ltmView, { last: { query: q, light, ms, region,
+    previewed = resp.headers.get("X-Ltm-Preview") === "1";
+    Object.assign(window.ltmView, { last: { query: q, light, ms, region, preview: previewed,
       render_ms: Number(resp.headers.get("X-Ltm-Render-Ms")) }, ready: true });
     window.ltmView.latencies.push(ms);
     window.ltmView.requests += 1;
+    window.ltmView.previews += previewed;
   } catch (err) {
     $("warning").textContent = String(err.message || err);
   } finally {
     state.inflight = window.ltmView.inflight = false;
-    if (state.wanted !== state.sent) send(state.wanted);
+    if (state.wanted !== state.sent) send(state.wanted, true);
+    else if (previewed) send(q, false);  // nothing newer: the whole picture of the same view
   }
 }
 
