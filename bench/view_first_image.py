@@ -7,11 +7,11 @@ tree through ``PYTHONPATH=TREE``: old first), loads its page in headless
 Chromium (1000 x 700 window; the DevTools driver of ``tests/browser.py``) and records:
 
 * ``start_s``: from the command to its URL line (the server opening the store);
-* ``first_image_s``: from loading the page to its first image shown (``ltmView.ready``);
-* ``fit_ms`` and ``zoomed_ms``: the page's round trip (request sent to image decoded) for
-  ``--repeats`` new lights, with the whole image fitted to the window and zoomed about its
-  centre to at least one image pixel per screen pixel; medians;
-* ``fit_bytes`` and ``zoomed_bytes``: the PNG bytes each of those images sent (medians).
+* ``load``: from loading the page to its first image (``first_s``: a preview where the page
+  asks one) and to its whole picture (``full_s``), and that picture's PNG ``bytes``;
+* ``fit`` and ``zoomed``: the same from moving the pointer to each of ``--repeats`` new
+  lights, with the whole image fitted to the window and zoomed about its centre to at least
+  one image pixel per screen pixel; medians.
 
 Writes ``view_first_image.json`` into ``--out`` with the load average before and after.
 """
@@ -42,17 +42,27 @@ BYTES = ("performance.getEntriesByType('resource').filter(e => e.name.includes('
 LIGHTS = [(0.3, 0.2), (-0.25, 0.35), (0.1, -0.4), (0.45, -0.05), (-0.35, -0.3)]
 
 
-def new_light(browser: Browser, u: float, v: float) -> tuple[float, int]:
-    """Move the pointer to ``(u, v)`` over the image; the round trip (ms) and PNG bytes."""
+def shown(browser: Browser, n: int, t0: float) -> dict:
+    """Seconds from ``t0`` to the page's next image (a preview, where it asks one) and to its
+    whole picture (nothing in flight), and the PNG bytes of that picture."""
+    browser.wait_for(f"window.ltmView.requests > {n}", timeout=1800)
+    first = time.perf_counter() - t0
+    browser.wait_for("!window.ltmView.inflight", timeout=1800)
+    return {"first_s": first, "full_s": time.perf_counter() - t0,
+            "bytes": browser.evaluate(BYTES)[-1]}
+
+
+def new_light(browser: Browser, u: float, v: float) -> dict:
+    """Move the pointer to ``(u, v)`` over the image (kept inside the viewport): :func:`shown`."""
     n = browser.evaluate("window.ltmView.requests")
     rect = browser.evaluate(STAGE)
     vp = browser.evaluate("JSON.parse(JSON.stringify(document.getElementById('viewport')"
                           ".getBoundingClientRect()))")
     x = min(max(rect["left"] + (u + 1) / 2 * rect["width"], vp["left"] + 1), vp["right"] - 1)
     y = min(max(rect["top"] + (1 - v) / 2 * rect["height"], vp["top"] + 1), vp["bottom"] - 1)
+    t0 = time.perf_counter()
     browser.move_mouse(x, y)
-    last = browser.wait_for(LAST.format(n=n), timeout=1800)
-    return last["ms"], browser.evaluate(BYTES)[-1]
+    return shown(browser, n, t0)
 
 
 def zoom_to_pixels(browser: Browser, width: int) -> None:
@@ -80,9 +90,7 @@ def measure(store: str, repeats: int, env: dict) -> dict:
         with Browser(1000, 700, timeout=60) as browser:
             t0 = time.perf_counter()
             browser.goto(url)
-            browser.wait_for("window.ltmView.ready", timeout=1800)
-            result["first_image_s"] = time.perf_counter() - t0
-            result["first_image_bytes"] = browser.evaluate(BYTES)[-1]
+            result["load"] = shown(browser, 0, t0)
             width = browser.evaluate("fetch('info').then(r => r.json()).then(i => i.width)")
             fit = [new_light(browser, *light) for light in LIGHTS[:repeats]]
             zoom_to_pixels(browser, width)
@@ -91,8 +99,7 @@ def measure(store: str, repeats: int, env: dict) -> dict:
         proc.terminate()
         proc.wait()
     for key, runs in (("fit", fit), ("zoomed", zoomed)):
-        result[f"{key}_ms"] = statistics.median(ms for ms, _ in runs)
-        result[f"{key}_bytes"] = statistics.median(size for _, size in runs)
+        result[key] = {k: statistics.median(run[k] for run in runs) for k in runs[0]}
         result[f"{key}_runs"] = runs
     return result
 
