@@ -65,9 +65,11 @@ async function send(q, preview) {
     if (resp.status === 409) return;  // given up for a newer light: it is sent next
     if (!resp.ok) throw new Error(await resp.text());
     const url = URL.createObjectURL(await resp.blob());
+    const decoded = new Image();
+    decoded.src = url;
+    await decoded.decode();  // then shown and placed at once: no frame of it in the old place
     const img = $("image");
     img.src = url;
-    await img.decode();
     const region = new URLSearchParams(q).get("region").split(",").map(Number);
     Object.assign(img.style, { left: `${region[0]}px`, top: `${region[1]}px`,
                                width: `${region[2]}px`, height: `${region[3]}px` });
