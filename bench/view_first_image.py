@@ -35,8 +35,8 @@ from rti_speed import load, ltm_command  # noqa: E402
 from ltmstore.core.provenance import commit  # noqa: E402
 
 STAGE = "JSON.parse(JSON.stringify(document.getElementById('stage').getBoundingClientRect()))"
-LAST = ("(() => {{ const v = window.ltmView; return !v.inflight && v.requests > {n} && "
-        "v.last; }})()")
+VIEWPORT = ("JSON.parse(JSON.stringify(document.getElementById('viewport')"
+            ".getBoundingClientRect()))")
 BYTES = ("performance.getEntriesByType('resource').filter(e => e.name.includes('/relight?'))"
          ".map(e => e.encodedBodySize)")
 LIGHTS = [(0.3, 0.2), (-0.25, 0.35), (0.1, -0.4), (0.45, -0.05), (-0.35, -0.3)]
@@ -56,8 +56,7 @@ def new_light(browser: Browser, u: float, v: float) -> dict:
     """Move the pointer to ``(u, v)`` over the image (kept inside the viewport): :func:`shown`."""
     n = browser.evaluate("window.ltmView.requests")
     rect = browser.evaluate(STAGE)
-    vp = browser.evaluate("JSON.parse(JSON.stringify(document.getElementById('viewport')"
-                          ".getBoundingClientRect()))")
+    vp = browser.evaluate(VIEWPORT)
     x = min(max(rect["left"] + (u + 1) / 2 * rect["width"], vp["left"] + 1), vp["right"] - 1)
     y = min(max(rect["top"] + (1 - v) / 2 * rect["height"], vp["top"] + 1), vp["bottom"] - 1)
     t0 = time.perf_counter()
@@ -67,8 +66,7 @@ def new_light(browser: Browser, u: float, v: float) -> dict:
 
 def zoom_to_pixels(browser: Browser, width: int) -> None:
     """Wheel about the viewport's centre until one image pixel covers a screen pixel."""
-    vp = browser.evaluate("JSON.parse(JSON.stringify(document.getElementById('viewport')"
-                          ".getBoundingClientRect()))")
+    vp = browser.evaluate(VIEWPORT)
     x, y = (vp["left"] + vp["right"]) / 2, (vp["top"] + vp["bottom"]) / 2
     browser.evaluate("document.getElementById('hold').checked = true")  # the light stays
     while browser.evaluate(STAGE)["width"] < width:

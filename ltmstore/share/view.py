@@ -151,7 +151,7 @@ class Viewer:
         self._newest = 0  # the number of the newest /relight request
         self._ticket_lock = threading.Lock()
         self.tiles = RelitTiles(self.ds, self.transfer, self._lock)
-        self.width, self.height = int(self.ds.sizes["x"]), int(self.ds.sizes["y"])
+        self.width, self.height = self.tiles.width, self.tiles.height
         w, h = min(START_CHECK, self.width), min(START_CHECK, self.height)
         centre = ((self.width - w) // 2, (self.height - h) // 2, w, h)
         self.render_linear(self.light_at(0.0, 0.0), centre)  # reads the store: fails early

@@ -60,6 +60,16 @@ def move_light(browser: Browser, u: float, v: float) -> dict:
         f"Math.abs(l.light.u - {u}) < 0.02 && Math.abs(l.light.v - {v}) < 0.02 && l.light; }})()")
 
 
+def wheel_at_centre(browser: Browser, delta_y: float) -> tuple[dict, float, float]:
+    """Turn the wheel by ``delta_y`` over the image's centre: the image's rect before, and
+    that centre."""
+    rect = browser.evaluate(RECT_JS)
+    x, y = rect["left"] + rect["width"] / 2, rect["top"] + rect["height"] / 2
+    browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=x, y=y, deltaX=0,
+                 deltaY=delta_y)
+    return rect, x, y
+
+
 @pytest.fixture(scope="module")
 def served(small_store):
     """``ltm view small_store`` as a real process: yields (process, URL)."""
@@ -129,10 +139,7 @@ def test_zoom_and_pan_keep_the_light_under_the_pointer(served):
     with Browser(600, 400) as browser:
         browser.goto(url)
         browser.wait_for("window.ltmView.ready")
-        before = browser.evaluate(RECT_JS)
-        x, y = before["left"] + before["width"] / 2, before["top"] + before["height"] / 2
-        browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=x, y=y, deltaX=0,
-                     deltaY=-400)
+        before, x, y = wheel_at_centre(browser, -400)
         zoomed = browser.wait_for(f"(() => {{ const r = {RECT_JS}; "
                                   f"return r.width > {1.5 * before['width']} && r; }})()")
         assert zoomed["left"] + zoomed["width"] / 2 == pytest.approx(x, abs=1)
@@ -156,10 +163,7 @@ def test_zoomed_in_the_page_asks_for_what_is_on_the_screen(served, small_store):
     with Browser(600, 400) as browser:
         browser.goto(url)
         browser.wait_for("window.ltmView.ready")
-        rect = browser.evaluate(RECT_JS)
-        x, y = rect["left"] + rect["width"] / 2, rect["top"] + rect["height"] / 2
-        browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=x, y=y, deltaX=0,
-                     deltaY=-800)
+        rect, _, _ = wheel_at_centre(browser, -800)
         browser.wait_for(f"{RECT_JS}.width > {3 * rect['width']}")
         light = move_light(browser, 0.05, -0.05)
         region = browser.evaluate("window.ltmView.last.region")
