@@ -5,7 +5,7 @@ Run: ``python bench/height_peer.py --relight-normals PATH [--data ../shared/data
 [--out bench/results] [--repeats 3]``.
 
 SynthRTI gives normals, not depth, so each height is scored by the normals it gives back
-(:func:`ltmstore.share.height.normals_of`) against the given ones: the median and 90th
+(:func:`ltmstore.solve.height.normals_of`) against the given ones: the median and 90th
 percentile angle (an integrable field would give 0; the relief's occluding edges are not one).
 Beside it, each height against ``poisson``'s (mean and best-fitting plane removed from both: the
 integrations leave the offset and tilt free) as an RMS in pixels of height, and the wall time
@@ -29,7 +29,7 @@ import numpy as np
 import tifffile
 
 from ltmstore.core.provenance import commit
-from ltmstore.share.height import INTEGRATIONS, integrate, normals_of
+from ltmstore.solve.height import INTEGRATIONS, integrate, normals_of
 
 sys.path.insert(0, str(Path(__file__).parent))
 from normals_baseline import truth_normals  # noqa: E402

@@ -351,6 +351,7 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
     """
     from ltmstore.core.store import open_store
     from ltmstore.share import height as ht
+    from ltmstore.solve.height import INTEGRATIONS
 
     check_material(directions, diffuse, specular)
     depth = check_depth(depth)
@@ -358,9 +359,9 @@ def maps(store: str | os.PathLike, out_dir: str | os.PathLike, *,
     if not height and (pixel_mm, object_width_mm, mesh_step) != (None, None, None):
         raise LtmError("--pixel-size, --object-width and --mesh-step scale the height map: "
                        "add --height or --mesh")
-    if integration not in ht.INTEGRATIONS:
+    if integration not in INTEGRATIONS:
         raise LtmError(f"--integration {integration!r} must be one of "
-                       f"{', '.join(ht.INTEGRATIONS)}")
+                       f"{', '.join(INTEGRATIONS)}")
     ht.pixel_size(1, pixel_mm, object_width_mm)
     if mesh and pixel_mm is None and object_width_mm is None:
         raise LtmError("--mesh writes millimetres: give the scale with --pixel-size MM or "

@@ -411,9 +411,12 @@ def fit_parameters(y: np.ndarray, w: np.ndarray, lights: Lights, *, n_iter: int 
     return best, w
 
 
-def far_lights(directions: np.ndarray, n: int, lobe: str = "ggx") -> Lights:
+def far_lights(directions: np.ndarray, n: int, lobe: str = "ggx",
+               visible: np.ndarray | None = None) -> Lights:
     """Distant lights at unit ``directions (M, 3)``, the same for all ``n`` pixels (no
-    fall-off): a classic RTI capture; the model's ``lobe`` there (one of :data:`LOBES`)."""
+    fall-off): a classic RTI capture; the model's ``lobe`` there (one of :data:`LOBES`).
+    ``visible (n, M)``: how much of each light reaches each pixel (its cast shadows, 0 to 1,
+    :mod:`ltmstore.solve.shadows`); the ambient floor is not shadowed."""
     if lobe not in LOBES:
         raise LtmError(f"lobe {lobe!r} is not one of {', '.join(LOBES)}")
     toward = np.ascontiguousarray(np.asarray(directions, dtype=np.float32).T)
@@ -421,8 +424,10 @@ def far_lights(directions: np.ndarray, n: int, lobe: str = "ggx") -> Lights:
     half[2] += 1
     half /= np.sqrt((half**2).sum(axis=0))
     shape = (3, n, toward.shape[1])
+    gain = (np.ones(shape[1:], dtype=np.float32) if visible is None
+            else np.ascontiguousarray(visible, dtype=np.float32).reshape(shape[1:]))
     return Lights(np.broadcast_to(toward[:, None], shape), np.broadcast_to(half[:, None], shape),
-                  np.ones(shape[1:], dtype=np.float32), far=True, lobe=lobe)
+                  gain, far=True, lobe=lobe)
 
 
 def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.ndarray:

@@ -66,7 +66,8 @@ from ltmstore.core.dims import EXPECTED_ERROR, FRAMES, LTM, LUMA, UNSUPPORTED, L
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import DISK, FAR, coordinate_attrs, disk_to_direction
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
-from ltmstore.solve import Geometry, physical
+from ltmstore.solve import Geometry, physical, shadows
+from ltmstore.solve.height import integrate
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
 from ltmstore.stages import surface as sf
 from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
@@ -220,10 +221,10 @@ class FarFit:
                     desc: str, progress: bool, surface: tuple | None = None) -> None:
         """Every tile of ``ltm``, ``expected_error`` and ``unsupported`` from its model in
         ``chosen`` (an index of :attr:`models`; ``len(models)``: the surface blend, of
-        ``surface = (theta, blend, gain)``)."""
+        ``surface = (theta, blend, gain, height)``, ``height`` the one casting its shadows)."""
         lat, loo32 = self.lat, self.loo.astype(np.float32)  # per pixel: float32 as the values
         ltm, error, unsupported = (group[n] for n in (LTM, EXPECTED_ERROR, UNSUPPORTED))
-        theta, blend, gain = surface if surface is not None else (None, None, None)
+        theta, blend, gain, height = surface if surface is not None else (None,) * 4
         at_cells = None if blend is None else sf.BlendAt.of(blend, self.train, self.cells)
 
         def write(index: tuple[int, int]) -> None:
@@ -234,7 +235,12 @@ class FarFit:
                 fitted, residual = self.to_lattice[best] @ values, loo32[best] @ values
             else:  # the surface model plus its smoothed residual (and classic model)
                 tile_theta = theta[rows, cols].reshape(-1, 3, 6)
-                fitted, residual = at_cells.image_and_residual(tile_theta, values)
+                visible = None
+                if blend.shadows:
+                    r, c = (a.ravel() for a in np.mgrid[rows, cols])
+                    visible = tuple(shadows.visibility(height, r, c, d, blend.shadows)
+                                    for d in (self.train, self.cells))
+                fitted, residual = at_cells.image_and_residual(tile_theta, values, visible)
             fitted = np.clip(fitted, 0, None)
             ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
             rms = np.sqrt(np.mean(residual**2, axis=0))
@@ -342,7 +348,8 @@ def _pool() -> ThreadPoolExecutor:
 
 def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: Model,
              models: tuple[Model, ...], method: str, timings: dict, luma: np.ndarray,
-             progress: bool) -> tuple[Model, tuple[np.ndarray, sf.Blend, np.ndarray] | None]:
+             progress: bool
+             ) -> tuple[Model, tuple[np.ndarray, sf.Blend, np.ndarray, np.ndarray | None] | None]:
     """The image's classic model and the surface model (:mod:`ltmstore.stages.surface`).
 
     With ``method="physical"`` the surface is fitted to the whole image and mixed with nothing.
@@ -356,10 +363,12 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     fits) is recorded as ``surface_skipped_s``.
 
     Returns the classic model and, where the surface is fitted, its parameters ``(y, x, 3,
-    6)``, its :class:`~ltmstore.stages.surface.Blend` and the valid frames' exposures (ones
-    unless chosen); its maps are written to the store. The frames' RGB is read band by band
-    of rows (:func:`~ltmstore.stages.surface.row_bands`), never whole: once for the sample,
-    once for the fit.
+    6)``, its :class:`~ltmstore.stages.surface.Blend`, the valid frames' exposures (ones
+    unless chosen) and the height casting its shadows (None where the held-out choice,
+    :func:`~ltmstore.stages.surface.choose_shadows`, leaves them out); its maps (and the
+    height, :data:`~ltmstore.stages.surface.SHADOW_HEIGHT`) are written to the store. The
+    frames' RGB is read band by band of rows (:func:`~ltmstore.stages.surface.row_bands`),
+    never whole: once for the sample, once for the fit.
     """
     start = time.perf_counter()
     n_pixels = luma.shape[1] * luma.shape[2]
@@ -398,9 +407,37 @@ def _surface(group: zarr.Group, valid: np.ndarray, train: np.ndarray, classic: M
     theta = _fit_bands(group, valid, luma, train, gain, lobe, progress)
     sf.write_surface(group, theta, lobe)
     encoded = linear_to_srgb((chosen @ LUMA).astype(np.float32))
-    smoother = sf.choose_smoother(encoded, theta.reshape(-1, 3, 6)[sample], train, lobe)
+    at_sample = theta.reshape(-1, 3, 6)[sample]
+    height, softness, visible = _shadows(group, theta, encoded, at_sample, train, sample, lobe,
+                                         timings)
+    smoother = sf.choose_smoother(encoded, at_sample, train, lobe, visible)
     timings["surface_s"] = time.perf_counter() - start
-    return classic, (theta, sf.Blend(smoother, classic, weight, lobe), gain)
+    return classic, (theta, sf.Blend(smoother, classic, weight, lobe, softness), gain, height)
+
+
+def _shadows(group: zarr.Group, theta: np.ndarray, encoded: np.ndarray, at_sample: np.ndarray,
+             train: np.ndarray, sample: np.ndarray, lobe: str, timings: dict
+             ) -> tuple[np.ndarray | None, float, np.ndarray | None]:
+    """The surface's cast shadows where they lower its held-out error
+    (:func:`~ltmstore.stages.surface.choose_shadows`, on the sampled pixels): the height
+    casting them (written to the store), their softness and their visibility at the sampled
+    pixels ``(p, t)``; ``(None, 0, None)`` where they are left out."""
+    start = time.perf_counter()
+    normal = physical.unit_normal(theta[..., 0, 0].ravel(), theta[..., 0, 1].ravel())
+    height = integrate(normal.reshape(*theta.shape[:2], 3)).astype(np.float32)
+    chosen, timings["shadow_scores"] = sf.choose_shadows(encoded, at_sample, train, height,
+                                                         sample, lobe)
+    timings["shadow_choice_s"] = time.perf_counter() - start
+    if chosen is None:
+        return None, 0.0, None
+    scale, softness = chosen
+    height *= scale
+    arr = st.create_variable(group, sf.SHADOW_HEIGHT, ("y", "x"), height.shape,
+                             chunks=tuple(min(n, sf.MAP_CHUNK) for n in height.shape),
+                             attrs={"units": "pixels", "scale": scale, "softness": softness})
+    arr[...] = height
+    rows, cols = np.unravel_index(sample, height.shape)
+    return height, softness, shadows.visibility(height, rows, cols, train, softness)
 
 
 def _fit_bands(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, train: np.ndarray,

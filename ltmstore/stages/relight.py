@@ -76,6 +76,7 @@ from ltmstore.core.transfer import (
     linear_to_srgb,
     srgb_to_linear,
 )
+from ltmstore.solve import shadows
 from ltmstore.solve.hsh import hsh_basis
 from ltmstore.solve.lightfit import Model
 from ltmstore.stages import surface
@@ -548,16 +549,24 @@ def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
                                                                BAND_BYTES))
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE]
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
+    at = (da.from_array(np.arange(height), chunks=(rows,)),  # where each block lies
+          da.from_array(np.arange(width), chunks=(cols,)))
+    if blend.shadows and surface.SHADOW_HEIGHT not in ds:
+        raise LtmError(f"the far-light store's method {blend.name!r} casts shadows but it has "
+                       f"no {surface.SHADOW_HEIGHT}; run `ltm reconstruct` again")
 
     weights = blend.smoother.weights(train, dirs).astype(np.float32)
 
-    def band(*values: np.ndarray) -> np.ndarray:
+    def band(ys: np.ndarray, xs: np.ndarray, *values: np.ndarray) -> np.ndarray:
         theta = surface.surface_theta(*values)
-        corr = _correction(blend, theta.reshape(-1, 3, 6), train, dirs, weights, color)
+        visible = _visible(ds, blend, ys, xs, train, dirs) if blend.shadows else None
+        corr = _correction(blend, theta.reshape(-1, 3, 6), train, dirs, weights, color,
+                           visible)
         return corr.reshape(len(dirs), *theta.shape[:2], *corr.shape[2:])
 
     extra = {"c": len(COLOR_CHANNELS)} if color else {}
-    indices = [(m, "yx" + ("k" if m.ndim == 3 else "")) for m in maps]
+    indices = [(at[0], "y"), (at[1], "x")]
+    indices += [(m, "yx" + ("k" if m.ndim == 3 else "")) for m in maps]
     image = da.blockwise(band, "lyx" + "".join(extra), *(x for pair in indices for x in pair),
                          new_axes={"l": len(dirs), **extra}, concatenate=True,
                          dtype=np.float32, meta=np.empty((0,) * (3 + bool(color)), np.float32))
@@ -565,18 +574,34 @@ def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
     return xr.DataArray(image, dims=dims)
 
 
+def _visible(ds: xr.Dataset, blend: surface.Blend, ys: np.ndarray, xs: np.ndarray,
+             train: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cast shadows (:func:`ltmstore.solve.shadows.visibility`) of the block of rows
+    ``ys`` and columns ``xs`` at the photographs' lights ``train`` and at ``dirs``: the
+    store's height read around the block, as far as its pixels' horizons look."""
+    margin = shadows.reach()
+    stored = ds[surface.SHADOW_HEIGHT]
+    top, left = max(int(ys[0]) - margin, 0), max(int(xs[0]) - margin, 0)
+    window = stored.isel(y=slice(top, int(ys[-1]) + margin + 1),
+                         x=slice(left, int(xs[-1]) + margin + 1)).values
+    r, c = (a.ravel() for a in np.meshgrid(ys - top, xs - left, indexing="ij"))
+    return tuple(shadows.visibility(window, r, c, d, blend.shadows) for d in (train, dirs))
+
+
 def _correction(blend: surface.Blend, theta: np.ndarray, train: np.ndarray, dirs: np.ndarray,
-                weights: np.ndarray, color: bool) -> np.ndarray:
+                weights: np.ndarray, color: bool,
+                visible: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """:meth:`~ltmstore.stages.surface.Blend.correction` of the pixels ``theta (p, 3, 6)``,
     ``weights`` the smoother's at ``dirs`` (float32), its sum over the captured lights taken
     light by light: the same in every band of rows (BLAS's order, as
     :func:`~ltmstore.stages.surface.correction` takes it, changes with the number of pixels and
     threads: in the last bit of 1.5 % of the values of a 1000 x 300 image)."""
-    at_train = surface.model_encoded(theta, train, color=color, lobe=blend.lobe)
+    at, to = (None, None) if visible is None else visible
+    at_train = surface.model_encoded(theta, train, color=color, lobe=blend.lobe, visible=at)
     mixed = np.zeros((len(dirs), *at_train.shape[1:]), np.float32)
     for k, plane in enumerate(at_train):
         mixed += weights[:, k].reshape(-1, *(1,) * plane.ndim) * plane
-    query = surface.model_encoded(theta, dirs, color=color, lobe=blend.lobe)
+    query = surface.model_encoded(theta, dirs, color=color, lobe=blend.lobe, visible=to)
     return blend.weight * (query - mixed)
 
 

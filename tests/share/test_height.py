@@ -15,6 +15,7 @@ from ltmstore.cli import build_parser, main
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.share import height as ht
+from ltmstore.solve import height as hi
 from ltmstore.stages.ingest_rti import ingest_rti
 from ltmstore.stages.reconstruct import reconstruct
 
@@ -45,7 +46,7 @@ def test_known_surface_integrates_back(method, bound):
     """Measured on a 9 px relief: RMS 0.0010 px (poisson), 0.0011 px (fc), 0.0009 px
     (bilateral: a smooth surface has no side to prefer)."""
     z, normal = surface()
-    height = ht.integrate(normal, method)
+    height = hi.integrate(normal, method)
     assert height.min() == 0 and rms(height, z) < bound
     assert np.ptp(height) == pytest.approx(np.ptp(z), rel=2e-3)
 
@@ -54,10 +55,10 @@ def test_missing_and_grazing_normals_stay_finite():
     _, normal = surface(24, 32)
     normal[3:6, 4:9] = np.nan
     normal[10, 10] = [1.0, 0.0, 0.0]
-    for method in ht.INTEGRATIONS:
-        assert np.isfinite(ht.integrate(normal, method)).all()
+    for method in hi.INTEGRATIONS:
+        assert np.isfinite(hi.integrate(normal, method)).all()
     with pytest.raises(LtmError, match="integration 'bni' must be one of poisson, fc, bilateral"):
-        ht.integrate(normal, "bni")
+        hi.integrate(normal, "bni")
 
 
 BAS_RELIEF = SHARED_DATA / "synthrti" / "single-obj2-material1" / "normals.png"
@@ -73,8 +74,8 @@ def test_synthrti_bas_relief_normals():
     normal = code / 65535 * 2 - 1
     normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
     for method, bound in (("poisson", 5.8), ("fc", 5.6), ("bilateral", 3.8)):
-        height = ht.integrate(normal, method)
-        back = ht.normals_of(height)
+        height = hi.integrate(normal, method)
+        back = hi.normals_of(height)
         error = np.degrees(np.arccos(np.clip((back * normal).sum(axis=-1), -1, 1)))
         assert np.median(error) < bound, (method, np.median(error))
         assert 60 < height.max() < 75, (method, height.max())
@@ -181,4 +182,4 @@ def test_cli_choices_copy_the_library():
     sub = next(a for a in build_parser()._subparsers._group_actions)
     maps = sub.choices["maps"]
     option = next(a for a in maps._actions if "--integration" in a.option_strings)
-    assert tuple(option.choices) == ht.INTEGRATIONS and option.default == ht.DEFAULT_INTEGRATION
+    assert tuple(option.choices) == hi.INTEGRATIONS and option.default == hi.DEFAULT_INTEGRATION
