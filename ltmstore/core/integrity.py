@@ -51,6 +51,7 @@ from ltmstore.core.checksum import is_checksum_error
 COORDINATES = ("t", "y", "x", "r", "s", "p", "q", "channel", "color", "component")
 SURFACE = ("normal", "albedo", "specular", "roughness", "ambient")
 SURFACE_PREFIX = "physical+"  # a far store's surface blend (ltmstore.stages.surface.PREFIX)
+SHADOW_MARK = "^shadows:"  # ...casting shadows (ltmstore.stages.surface.SHADOW_MARK)
 FRAME_VARIABLES = ("frames", "frame_chroma")  # what `ltm compact` may drop
 LATTICES = (("r", "s"), ("r", "s", "p", "q"))
 F16, F32, F64 = "float16", "float32", "float64"
@@ -81,6 +82,7 @@ def _layout() -> dict[str, tuple[tuple[tuple[str, ...], ...], tuple[str, ...]]]:
         "exposure": ((("t",),), (F32,)),
         "normal": (((*pixels, "component"),), (F32,)),
         "roughness": ((pixels,), (F32,)),
+        "shadow_height": ((pixels,), (F32,)),
         **{f"pose_{k}": ((("t",),), (F64,)) for k in "rszpq"},
         **{k: (((*pixels, "channel"),), (F32,)) for k in ("chroma", "chroma_spread")},
         **{k: (per_cell, (F16, F32)) for k in ("samples", "samples_cb", "samples_cr")},
@@ -483,6 +485,8 @@ def required(attrs: dict, metas: dict[str, Meta]) -> dict[str, str]:
             need["exposure"] = "reconstruct"
         if _has_surface(reconstruct, acquisition, metas.get("method_map"), far):
             need.update({n: "reconstruct" for n in SURFACE})
+        if far and any(SHADOW_MARK in m for m in _methods(metas.get("method_map"))):
+            need["shadow_height"] = "reconstruct"
     return need
 
 
@@ -490,16 +494,20 @@ def _has_surface(record: dict, acquisition: dict, method_map: Meta | None, far: 
     """Whether the reconstruction wrote the surface maps (as ltmstore.stages.reconstruct and
     reconstruct_far do)."""
     if far:
-        try:
-            meta = json.loads((method_map.folder / "zarr.json").read_text()) if method_map else {}
-        except (OSError, ValueError):
-            return False
-        methods = meta.get("attributes", {}).get("methods", [])
-        return any(str(m).startswith(SURFACE_PREFIX) for m in methods)
+        return any(m.startswith(SURFACE_PREFIX) for m in _methods(method_map))
     lattice = record.get("lattice", {}).get("dims", [])
     placed = "object" in acquisition if "placement" not in record \
         else bool((record["placement"] or {}).get("extent"))  # declared or estimated
     return record.get("method") in ("auto", "physical") and placed and len(lattice) == 2
+
+
+def _methods(method_map: Meta | None) -> list[str]:
+    """The method names a far store's ``method_map`` lists (none where it cannot be read)."""
+    try:
+        meta = json.loads((method_map.folder / "zarr.json").read_text()) if method_map else {}
+    except (OSError, ValueError):
+        return []
+    return [str(m) for m in meta.get("attributes", {}).get("methods", [])]
 
 
 def size_damage(metas: dict[str, Meta], attrs: dict) -> list[str]:

@@ -51,6 +51,7 @@ STAGE_VARIABLES = {
                     "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light",
                     # a far-light store's surface model (ltmstore.stages.surface)
                     "normal", "albedo", "specular", "roughness", "ambient", "exposure",
+                    "shadow_height",
                     # the factored form `ltm compact --form factored` leaves (core.factored)
                     # and its staging during `ltm reconstruct --form factored`
                     *(f"{n}{part}" for n in ("ltm", "ltm_cb", "ltm_cr")
@@ -58,7 +59,8 @@ STAGE_VARIABLES = {
                                    factored.TILE_WEIGHTS, factored.TILE_BASIS))),
     # a far-light store's surface refinement (REFINEMENT), after the classic fit of
     # "reconstruct": the arrays only it writes
-    "reconstruct_surface": ("normal", "albedo", "specular", "roughness", "ambient", "exposure"),
+    "reconstruct_surface": ("normal", "albedo", "specular", "roughness", "ambient", "exposure",
+                            "shadow_height"),
 }
 # The arrays each stage (re)writes, besides coordinates (:func:`complete_stage` records what it
 # wrote in them): ``ltm compact`` rewrites the LTM variables; the surface refinement none of its

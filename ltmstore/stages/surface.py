@@ -57,6 +57,7 @@ import zarr
 
 from ltmstore.core import store as st
 from ltmstore.core.dims import COLOR, COLOR_CHANNELS, LUMA, rgb_from_ycbcr
+from ltmstore.core.integrity import SHADOW_MARK  # ...and cast shadows: ^shadows:SOFTNESS
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
 from ltmstore.solve import physical, shadows
 from ltmstore.solve.lightfit import TIE, Model, choose, loo_operator, pick, rbf_models
@@ -71,7 +72,6 @@ SURFACE = (NORMAL, ALBEDO, SPECULAR, ROUGHNESS, AMBIENT)
 EXPOSURE = "exposure"  # (t): each photograph's exposure, relative to the capture's mean
 PREFIX = "physical+"  # method names of the model plus its residual smoother: physical+rbf:W:S
 LOBE_MARK = "@"  # ...and a lobe other than GGX after it: physical+rbf:W:S@beckmann
-SHADOW_MARK = "^shadows:"  # ...and cast shadows, their softness (degrees) after it
 SHADOW_HEIGHT = "shadow_height"  # (y, x): the height (pixels) that casts them
 # Cast shadows must lower the leave-one-light-out error of the surface plus residual by this
 # fraction to be taken (choose_shadows). Measured (the surface fitted to every light, 4096

@@ -3,9 +3,12 @@ horizon of each pixel toward each light, chosen by held-out error, relit band by
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 from dome_helpers import dome
+from pipeline_helpers import ltm_here, only_error_line
 
 from ltmstore.core.lights import elevation_azimuth
 from ltmstore.core.store import open_store
@@ -132,3 +135,18 @@ def test_shadowed_relighting_is_the_same_band_by_band(relief, monkeypatch):
     banded = rl.relight(open_store(store), directions=TEST[:3])
     assert banded.data.numblocks[1] > 4
     np.testing.assert_allclose(banded.values, whole, rtol=1e-5, atol=1e-6)
+
+
+def test_a_store_without_its_shadows_height_is_damaged_and_never_relit(relief, tmp_path,
+                                                                       capsys):
+    store = tmp_path / "s.zarr"
+    shutil.copytree(relief[0] / "shadows.zarr", store)
+    assert ltm_here(capsys, "check", store).returncode == 0
+    shutil.rmtree(store / sf.SHADOW_HEIGHT)
+    said = f"{sf.SHADOW_HEIGHT} is missing (the reconstruct stage wrote it)"
+    check = ltm_here(capsys, "check", store)
+    assert check.returncode == 2 and f"ltm: damaged: {store}/{said}" in check.stderr, check.stderr
+    relit = ltm_here(capsys, "relight", store, "--direction", "0.5,0,0.5", "-o",
+                     tmp_path / "a.png")
+    only_error_line(relit, "is damaged", sf.SHADOW_HEIGHT, "ltm check")
+    assert not (tmp_path / "a.png").exists()
