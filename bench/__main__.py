@@ -38,6 +38,8 @@ BENCHMARKS = {
     "stability": Benchmark("stability_table.py", "every method in nine failure regimes"),
     "heldout_table": Benchmark("heldout_table.py", "held-out photographs: the default against "
                                "every classic fit"),
+    "cast_shadows": Benchmark("cast_shadows.py", "the far surface's cast shadows on the "
+                              "relief at 96-512 px: held-out PSNR, time, with and without"),
     "heldout_protocols": Benchmark("heldout_protocols.py", "other held-out rules for the far "
                                    "surface's choice"),
     "rti_speed": Benchmark("rti_speed.py", "classic captures: ingest-rti + reconstruct beside "

@@ -237,9 +237,9 @@ class FarFit:
                 tile_theta = theta[rows, cols].reshape(-1, 3, 6)
                 visible = None
                 if blend.shadows:
-                    r, c = (a.ravel() for a in np.mgrid[rows, cols])
-                    visible = tuple(shadows.visibility(height, r, c, d, blend.shadows)
-                                    for d in (self.train, self.cells))
+                    visible = tuple(shadows.visible(
+                        d, shadows.region_horizons(height, rows, cols, d), blend.shadows)
+                        for d in (self.train, self.cells))
                 fitted, residual = at_cells.image_and_residual(tile_theta, values, visible)
             fitted = np.clip(fitted, 0, None)
             ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
@@ -436,8 +436,8 @@ def _shadows(group: zarr.Group, theta: np.ndarray, encoded: np.ndarray, at_sampl
                              chunks=tuple(min(n, sf.MAP_CHUNK) for n in height.shape),
                              attrs={"units": "pixels", "scale": scale, "softness": softness})
     arr[...] = height
-    rows, cols = np.unravel_index(sample, height.shape)
-    return height, softness, shadows.visibility(height, rows, cols, train, softness)
+    horizon = shadows.horizons(height, *np.unravel_index(sample, height.shape), train)
+    return height, softness, shadows.visible(train, horizon, softness)
 
 
 def _fit_bands(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, train: np.ndarray,

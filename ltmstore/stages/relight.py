@@ -576,16 +576,12 @@ def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
 
 def _visible(ds: xr.Dataset, blend: surface.Blend, ys: np.ndarray, xs: np.ndarray,
              train: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The cast shadows (:func:`ltmstore.solve.shadows.visibility`) of the block of rows
-    ``ys`` and columns ``xs`` at the photographs' lights ``train`` and at ``dirs``: the
-    store's height read around the block, as far as its pixels' horizons look."""
-    margin = shadows.reach()
-    stored = ds[surface.SHADOW_HEIGHT]
-    top, left = max(int(ys[0]) - margin, 0), max(int(xs[0]) - margin, 0)
-    window = stored.isel(y=slice(top, int(ys[-1]) + margin + 1),
-                         x=slice(left, int(xs[-1]) + margin + 1)).values
-    r, c = (a.ravel() for a in np.meshgrid(ys - top, xs - left, indexing="ij"))
-    return tuple(shadows.visibility(window, r, c, d, blend.shadows) for d in (train, dirs))
+    """The cast shadows (:mod:`ltmstore.solve.shadows`) of the block of rows ``ys`` and
+    columns ``xs`` at the photographs' lights ``train`` and at ``dirs``."""
+    rows, cols = slice(int(ys[0]), int(ys[-1]) + 1), slice(int(xs[0]), int(xs[-1]) + 1)
+    stored = ds[surface.SHADOW_HEIGHT].variable
+    return tuple(shadows.visible(d, shadows.region_horizons(stored, rows, cols, d),
+                                 blend.shadows) for d in (train, dirs))
 
 
 def _correction(blend: surface.Blend, theta: np.ndarray, train: np.ndarray, dirs: np.ndarray,

@@ -75,8 +75,8 @@ LOBE_MARK = "@"  # ...and a lobe other than GGX after it: physical+rbf:W:S@beckm
 SHADOW_HEIGHT = "shadow_height"  # (y, x): the height (pixels) that casts them
 # Cast shadows must lower the leave-one-light-out error of the surface plus residual by this
 # fraction to be taken (choose_shadows). Measured (the surface fitted to every light, 4096
-# pixels, scale and softness of shadows.SCALES x SOFTNESS): the relief renders of
-# bench/heldout_table.py scored 0.50-0.56 of the error without them and gained 1.8-2.6 dB at
+# pixels, scale and softness of shadows.SCALES x SOFTNESS): the GGX and Beckmann relief renders
+# of bench/heldout_table.py scored about half the error without them and gained 1.3-5.0 dB at
 # their test lights; SynthRTI single-obj2-material1 scored 0.96 and would lose 0.18 dB,
 # multi-obj2-material1 0.98 (+0.11 dB); the real captures 0.997-1.0.
 SHADOW_MARGIN = 0.1
@@ -127,7 +127,7 @@ class Blend:
     classic: Model
     weight: float = 1.0
     lobe: str = "ggx"  # the model's microfacet distribution (physical.LOBES)
-    shadows: float = 0.0  # the cast shadows' softness, degrees (0: none; shadows.visibility)
+    shadows: float = 0.0  # the cast shadows' softness, degrees (0: none; shadows.visible)
 
     @property
     def name(self) -> str:
@@ -357,12 +357,12 @@ def choose_shadows(encoded: np.ndarray, theta: np.ndarray, train: np.ndarray,
     scores : dict
         Each variant's error over the error without shadows (``"SCALE/SOFTNESS"``).
     """
-    rows, cols = np.unravel_index(pixels, height.shape)
+    horizon = shadows.horizons(height, *np.unravel_index(pixels, height.shape), train)
     none = _smoother_and_error(encoded, theta, train, lobe, None)[1]
     scores = {}
     for scale in shadows.SCALES:
         for softness in shadows.SOFTNESS:
-            visible = shadows.visibility(scale * height, rows, cols, train, softness)
+            visible = shadows.visible(train, scale * horizon, softness)
             error = _smoother_and_error(encoded, theta, train, lobe, visible)[1]
             scores[(scale, softness)] = error / none if none > 0 else np.inf
     best = min(scores, key=scores.get)

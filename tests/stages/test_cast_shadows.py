@@ -40,14 +40,17 @@ def test_a_wall_shadows_the_floor_before_it_from_the_lights_behind_it():
     # the pixel 5 columns before the wall: its horizon toward +x rises atan(10 / 5) = 63.4 deg
     lights = elevation_azimuth(np.array([45.0, 63.4349, 80.0, 45.0, 45.0]),
                                np.array([0.0, 0.0, 0.0, 180.0, 90.0]))
-    seen = shadows.visibility(wall(), np.array([4]), np.array([15]), lights, 2.0)[0]
+    horizon = shadows.horizons(wall(), np.array([4]), np.array([15]), lights)
+    assert horizon[0, :3] == pytest.approx(2.0)  # 10 pixels up, 5 across
+    seen = shadows.visible(lights, horizon, 2.0)[0]
     assert seen[0] == pytest.approx(1 / (1 + np.exp(18.4349 / 2)), abs=1e-4)  # 18 deg below
     assert seen[1] == pytest.approx(0.5, abs=1e-3)  # at the horizon: half
     assert seen[2] == pytest.approx(1 / (1 + np.exp(-16.5651 / 2)), abs=1e-4)
     assert seen[3] == pytest.approx(1.0, abs=1e-6)  # from behind: nothing rises
     assert seen[4] == pytest.approx(1.0, abs=1e-6)  # along the wall: nothing rises either
     # beyond the edges the edge's height: on top of the wall nothing shadows anything
-    top = shadows.visibility(wall(), np.arange(9), np.full(9, 39), lights, 2.0)
+    top = shadows.visible(lights, shadows.horizons(wall(), np.arange(9), np.full(9, 39), lights),
+                          2.0)
     assert (top > 0.9999).all()
 
 
@@ -56,8 +59,11 @@ def test_the_softness_and_the_steps_reach():
     far[0, 150:] = 20  # 20 pixels high, 120 columns away: beyond the horizon's reach
     light = elevation_azimuth(np.array([5.0]), np.array([0.0]))
     assert shadows.reach() == 96
-    assert shadows.visibility(far, np.array([0]), np.array([30]), light, 1.0)[0, 0] > 0.99
-    near = shadows.visibility(far, np.array([0]), np.array([100]), light, 1.0)[0, 0]
+    def seen(column):
+        return shadows.visible(light, shadows.horizons(far, [0], [column], light), 1.0)[0, 0]
+
+    assert seen(30) > 0.99
+    near = seen(100)
     assert near < 1e-6  # 50 columns away: the step of 53 columns sees it 15.7 degrees above
 
 
@@ -150,3 +156,18 @@ def test_a_store_without_its_shadows_height_is_damaged_and_never_relit(relief, t
                      tmp_path / "a.png")
     only_error_line(relit, "is damaged", sf.SHADOW_HEIGHT, "ltm check")
     assert not (tmp_path / "a.png").exists()
+
+
+@pytest.mark.parametrize("rows,cols", [(slice(10, 140), slice(200, 257)),
+                                       (slice(0, 300), slice(0, 7)), (slice(120, 121),
+                                                                      slice(30, 31))])
+def test_a_region_sees_what_its_pixels_see_one_by_one(rows, cols):
+    rng = np.random.default_rng(0)
+    height = rng.normal(size=(300, 257)).cumsum(0).cumsum(1).astype(np.float32) / 30
+    lights = elevation_azimuth(rng.uniform(5, 89, 40), rng.uniform(0, 360, 40))
+    r, c = (a.ravel() for a in np.mgrid[rows, cols])
+    one_by_one = shadows.horizons(height, r, c, lights)
+    region = shadows.region_horizons(height, rows, cols, lights)
+    seen = shadows.visible(lights, one_by_one, 2.0)
+    assert 0.02 < (seen < 0.5).mean() < 0.98  # shadowed and lit pixels both
+    np.testing.assert_allclose(region, one_by_one, rtol=1e-6)
