@@ -60,12 +60,15 @@ def horizons(height: np.ndarray, rows: np.ndarray, cols: np.ndarray, directions:
     return out
 
 
-def region_horizons(height, rows: slice, cols: slice, directions: np.ndarray) -> np.ndarray:
+def region_horizons(height, rows: slice, cols: slice, directions: np.ndarray, *,
+                    spacing: int = 1) -> np.ndarray:
     """:func:`horizons` of the pixels of ``height[rows, cols]`` (row-major), ``(p, d)``;
     ``height`` any 2-D array that slices (NumPy, Zarr, xarray): only the rectangle and the
-    :func:`reach` around it are read."""
+    :func:`reach` around it are read. ``spacing``: the image's pixels between two of
+    ``height``'s (a height taken at every n-th pixel, as a preview strides the store: the
+    horizon then looks as far in the image, on the samples it has)."""
     bounds = ((rows.start, rows.stop), (cols.start, cols.stop))
-    pad = reach()
+    pad = -(-reach() // spacing)
     cut = [(max(a - pad, 0), min(b + pad, n)) for (a, b), n in
            zip(bounds, height.shape, strict=True)]
     window = np.asarray(height[cut[0][0]:cut[0][1], cut[1][0]:cut[1][1]], dtype=np.float32)
@@ -77,9 +80,10 @@ def region_horizons(height, rows: slice, cols: slice, directions: np.ndarray) ->
     out = np.full((h * w, len(directions)), -np.inf, dtype=np.float32)
     for i, direction in enumerate(np.asarray(directions, dtype=np.float64)):
         horizon = out[:, i].reshape(h, w).copy()
-        for dr, dc in _offsets(direction):
+        for dr, dc in _offsets(direction, spacing):
             shifted = window[pad + dr:pad + dr + h, pad + dc:pad + dc + w]
-            np.maximum(horizon, (shifted - here) / np.float32(np.hypot(dr, dc)), out=horizon)
+            distance = np.float32(spacing * np.hypot(dr, dc))
+            np.maximum(horizon, (shifted - here) / distance, out=horizon)
         out[:, i] = horizon.ravel()
     return out
 
@@ -94,11 +98,12 @@ def visible(directions: np.ndarray, horizon: np.ndarray, softness: float) -> np.
     return (1 / (1 + np.exp(-above / np.float32(softness)))).astype(np.float32)
 
 
-def _offsets(direction: np.ndarray) -> list[tuple[int, int]]:
-    """The pixel steps ``(rows, columns)`` toward a light, one per distance of :data:`STEPS`
-    (repeats dropped); none for a light straight above."""
+def _offsets(direction: np.ndarray, spacing: int = 1) -> list[tuple[int, int]]:
+    """The steps ``(rows, columns)`` toward a light, one per distance of :data:`STEPS` (in
+    the image's pixels, ``spacing`` of them between two samples; repeats dropped); none for a
+    light straight above."""
     lx, ly, _ = direction
-    across = float(np.hypot(lx, ly))
+    across = float(np.hypot(lx, ly)) * spacing
     if across <= 1e-6:
         return []
     steps = [(int(round(-t * ly / across)), int(round(t * lx / across))) for t in STEPS]

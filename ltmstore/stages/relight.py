@@ -577,10 +577,14 @@ def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
 def _visible(ds: xr.Dataset, blend: surface.Blend, ys: np.ndarray, xs: np.ndarray,
              train: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The cast shadows (:mod:`ltmstore.solve.shadows`) of the block of rows ``ys`` and
-    columns ``xs`` at the photographs' lights ``train`` and at ``dirs``."""
+    columns ``xs`` (positions in ``ds``) at the photographs' lights ``train`` and at
+    ``dirs``."""
     rows, cols = slice(int(ys[0]), int(ys[-1]) + 1), slice(int(xs[0]), int(xs[-1]) + 1)
     stored = ds[surface.SHADOW_HEIGHT].variable
-    return tuple(shadows.visible(d, shadows.region_horizons(stored, rows, cols, d),
+    # a store strided to every n-th pixel (ltm view's preview): its x coordinate says n
+    spacing = int(ds["x"][1] - ds["x"][0]) if "x" in ds.coords and ds.sizes["x"] > 1 else 1
+    return tuple(shadows.visible(d, shadows.region_horizons(stored, rows, cols, d,
+                                                            spacing=spacing),
                                  blend.shadows) for d in (train, dirs))
 
 

@@ -171,3 +171,16 @@ def test_a_region_sees_what_its_pixels_see_one_by_one(rows, cols):
     seen = shadows.visible(lights, one_by_one, 2.0)
     assert 0.02 < (seen < 0.5).mean() < 0.98  # shadowed and lit pixels both
     np.testing.assert_allclose(region, one_by_one, rtol=1e-6)
+
+
+def test_a_strided_preview_casts_the_same_shadows_nearly(relief):
+    ds = open_store(relief[0] / "shadows.zarr")
+    whole = rl.relight(ds, directions=TEST[:5]).values[:, 1::2, 1::2]
+    strided = rl.relight(ds.isel(y=slice(1, None, 2), x=slice(1, None, 2)),
+                         directions=TEST[:5]).values
+    code = [np.round(linear_to_srgb(np.clip(v, 0, 1)) * 255) for v in (whole, strided)]
+    error = np.abs(code[0] - code[1])
+    # horizons on every other pixel's height, looking as far in the image: measured mean 0.86
+    # code values, 99th percentile 20 (at the shadows' edges); with the strided pixels taken
+    # as the image's, 6.96 and 50
+    assert error.mean() < 1.0 and np.percentile(error, 99) < 24, (error.mean(), error.max())
