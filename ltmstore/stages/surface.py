@@ -13,6 +13,11 @@ and added in the sRGB-encoded domain, where the classic fits work too::
 
     image(d) = srgb(M(d)) + W(d) . (encoded photographs - srgb(M(train)))
 
+Where the surface is a relief, ``M`` also casts shadows (:func:`choose_shadows`,
+:mod:`ltmstore.solve.shadows`): its normals integrated into a height, each light's direct term
+dimmed where the height's horizon rises above it, taken where that lowers the residual's
+leave-one-light-out error by :data:`SHADOW_MARGIN`.
+
 Two terms are chosen with it on held-out lights (:func:`cross_validated`), each only where it
 lowers the error there:
 
@@ -268,12 +273,7 @@ def model_encoded(theta: np.ndarray, directions: np.ndarray, *, color: bool,
     """The model (its lobe of the distribution ``lobe``) at ``directions (d, 3)``,
     sRGB-encoded: ``(d, p, 3)`` with ``color``, else the luminance ``(d, p)``; ``theta (p, 3,
     6)``; ``visible (p, d)``: how much of each light reaches each pixel (None: all)."""
-    if visible is not None:
-        rgb = physical.render_colour(theta, physical.far_lights(directions, len(theta), lobe,
-                                                                visible))
-        linear = np.moveaxis(rgb if color else rgb @ LUMA, 1, 0).clip(min=0)
-        return linear_to_srgb(linear.astype(np.float32))
-    if not color and _shared_geometry(theta):
+    if visible is None and not color and _shared_geometry(theta):
         # the model is linear in albedo, lobe strength and floor, and the channels share the
         # normal and roughness: the luminance is the model of the luminance's parameters (one
         # render instead of three; equal to float32 rounding)
@@ -287,7 +287,8 @@ def model_encoded(theta: np.ndarray, directions: np.ndarray, *, color: bool,
                                         physical.far_lights(directions, len(luma) // 3, lobe))
         linear = np.moveaxis(packed, 2, 1).reshape(len(luma), -1)[:n]  # (p, d)
         return linear_to_srgb(linear.T.clip(min=0))
-    rgb = physical.render_colour(theta, physical.far_lights(directions, len(theta), lobe))
+    rgb = physical.render_colour(theta, physical.far_lights(directions, len(theta), lobe,
+                                                            visible))
     linear = np.moveaxis(rgb if color else rgb @ LUMA, 1, 0).clip(min=0)
     return linear_to_srgb(linear.astype(np.float32))
 
