@@ -28,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from heldout_table import DISTANCE, DOMES, TEST, rings, write_lp  # noqa: E402
+from heldout_table import render  # noqa: E402
 
 from ltmstore import __version__  # noqa: E402
 from ltmstore.core.store import open_store  # noqa: E402
@@ -37,22 +37,8 @@ from ltmstore.stages import surface as sf  # noqa: E402
 from ltmstore.stages.ingest_rti import ingest_rti  # noqa: E402
 from ltmstore.stages.reconstruct import reconstruct  # noqa: E402
 from ltmstore.stages.relight import relight  # noqa: E402
-from ltmstore.synthetic.render import iter_frames  # noqa: E402
-from ltmstore.synthetic.scenes import make_scene  # noqa: E402
 
 VARIANTS = {"default": sf.SHADOW_MARGIN, "no shadows": 1.0}  # 1: never taken
-
-
-def render(folder: Path, size: int) -> None:
-    """The relief at ``size`` px under the dome (``folder/dome``) and the test lights."""
-    if (folder / "test" / "dirs.lp").is_file():
-        return
-    scene = make_scene("relief", size=size, seed=0)
-    top = next(iter_frames(scene, [np.array([0, 0, DISTANCE])], intensity=DISTANCE**2))
-    intensity = DISTANCE**2 * 0.6 / max(float(np.percentile(top, 99)), 1e-6)
-    for part, directions in (("dome", rings(DOMES["raking"])), ("test", rings(TEST, 0.3))):
-        frames = iter_frames(scene, [DISTANCE * d for d in directions], intensity=intensity)
-        write_lp(folder / part, frames, directions)
 
 
 def run(folder: Path, name: str, margin: float) -> dict:
@@ -122,7 +108,7 @@ def main(argv: list[str] | None = None) -> None:
     results = {}
     for size in args.sizes:
         folder = args.work / str(size)
-        render(folder, size)
+        render(folder, "relief-ggx-raking", size)  # heldout_table's render at this size
         runs = {name: [] for name in VARIANTS}
         for _ in range(args.repeats):  # alternating
             for name, margin in VARIANTS.items():

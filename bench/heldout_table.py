@@ -87,12 +87,13 @@ def write_lp(folder: Path, frames, directions: np.ndarray) -> Path:
     return folder / "dirs.lp"
 
 
-def render(folder: Path, name: str) -> None:
-    """The capture ``SCENE-SHADING-DOME`` into ``folder/dome`` and ``folder/test``."""
+def render(folder: Path, name: str, size: int = RENDER_SIZE) -> None:
+    """The capture ``SCENE-SHADING-DOME`` (``size`` px square) into ``folder/dome`` and
+    ``folder/test``."""
     if (folder / "test" / "dirs.lp").is_file():
         return
     scene_name, shading_name, dome = name.split("-")
-    scene, shading = make_scene(scene_name, size=RENDER_SIZE, seed=0), SHADINGS[shading_name]
+    scene, shading = make_scene(scene_name, size=size, seed=0), SHADINGS[shading_name]
     top = next(iter_frames(scene, [np.array([0, 0, DISTANCE])], shading=shading,
                            intensity=DISTANCE**2))
     intensity = DISTANCE**2 * 0.6 / max(float(np.percentile(top, 99)), 1e-6)

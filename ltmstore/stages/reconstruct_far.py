@@ -425,8 +425,9 @@ def _shadows(group: zarr.Group, theta: np.ndarray, encoded: np.ndarray, at_sampl
     start = time.perf_counter()
     normal = physical.unit_normal(theta[..., 0, 0].ravel(), theta[..., 0, 1].ravel())
     height = integrate(normal.reshape(*theta.shape[:2], 3)).astype(np.float32)
-    chosen, timings["shadow_scores"] = sf.choose_shadows(encoded, at_sample, train, height,
-                                                         sample, lobe)
+    horizon = shadows.horizons(height, *np.unravel_index(sample, height.shape), train)
+    chosen, timings["shadow_scores"] = sf.choose_shadows(encoded, at_sample, train, horizon,
+                                                         lobe)
     timings["shadow_choice_s"] = time.perf_counter() - start
     if chosen is None:
         return None, 0.0, None
@@ -436,8 +437,7 @@ def _shadows(group: zarr.Group, theta: np.ndarray, encoded: np.ndarray, at_sampl
                              chunks=tuple(min(n, sf.MAP_CHUNK) for n in height.shape),
                              attrs={"units": "pixels", "scale": scale, "softness": softness})
     arr[...] = height
-    horizon = shadows.horizons(height, *np.unravel_index(sample, height.shape), train)
-    return height, softness, shadows.visible(train, horizon, softness)
+    return height, softness, shadows.visible(train, scale * horizon, softness)
 
 
 def _fit_bands(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, train: np.ndarray,

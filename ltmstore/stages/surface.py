@@ -184,23 +184,14 @@ class BlendAt:
                    blend.smoother.weights(train, query).astype(np.float32),
                    loo_operator(blend.smoother.hat(train)), other)
 
-    def image(self, theta: np.ndarray, encoded: np.ndarray,
-              visible: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-        """Luminance ``(q, p)`` at the query lights from ``encoded (n, p)`` of the pixels
-        ``theta (p, 3, 6)``; ``visible``: how much of each light reaches them, at the
-        photographs' lights ``(p, n)`` and the query's ``(p, q)`` (None: all of it)."""
-        return self.image_and_residual(theta, encoded, visible)[0]
-
-    def loo_residual(self, theta: np.ndarray, encoded: np.ndarray,
-                     visible: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-        """Leave-one-light-out residuals ``(n, p)`` of the luminance ``encoded (n, p)``."""
-        return self.image_and_residual(theta, encoded, visible)[1]
-
     def image_and_residual(self, theta: np.ndarray, encoded: np.ndarray,
                            visible: tuple[np.ndarray, np.ndarray] | None = None
                            ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`image` and :meth:`loo_residual`, the model rendered at the photographs'
-        lights once for both."""
+        """Luminance ``(q, p)`` at the query lights from ``encoded (n, p)`` of the pixels
+        ``theta (p, 3, 6)``, and its leave-one-light-out residuals ``(n, p)``, the model
+        rendered at the photographs' lights once for both; ``visible``: how much of each light
+        reaches the pixels, at the photographs' lights ``(p, n)`` and the query's ``(p, q)``
+        (None: all of it)."""
         at, to = (None, None) if visible is None else visible
         at_train = model_encoded(theta, self.train, color=False, lobe=self.blend.lobe,
                                  visible=at)
@@ -332,7 +323,7 @@ def _smoother_and_error(encoded: np.ndarray, theta: np.ndarray, train: np.ndarra
 
 
 def choose_shadows(encoded: np.ndarray, theta: np.ndarray, train: np.ndarray,
-                   height: np.ndarray, pixels: np.ndarray, lobe: str = "ggx"
+                   horizon: np.ndarray, lobe: str = "ggx"
                    ) -> tuple[tuple[float, float] | None, dict[str, float]]:
     """Whether the surface casts shadows, by the leave-one-light-out error of its residual
     (:func:`choose_smoother`'s) with and without them.
@@ -343,10 +334,9 @@ def choose_shadows(encoded: np.ndarray, theta: np.ndarray, train: np.ndarray,
         The encoded luminance of the sampled pixels at the photographs' lights ``train``.
     theta : ndarray, shape (p, 3, 6)
         Their surface, fitted to every light.
-    height : ndarray, shape (H, W)
-        The whole image's height in pixels (its normals integrated).
-    pixels : ndarray of int, shape (p,)
-        The sampled pixels' flat indices into ``height``.
+    horizon : ndarray, shape (p, t)
+        Their horizons toward the photographs' lights on the whole image's height, its normals
+        integrated (:func:`ltmstore.solve.shadows.horizons`), before any scale.
     lobe : str
         The surface's lobe.
 
@@ -358,7 +348,6 @@ def choose_shadows(encoded: np.ndarray, theta: np.ndarray, train: np.ndarray,
     scores : dict
         Each variant's error over the error without shadows (``"SCALE/SOFTNESS"``).
     """
-    horizon = shadows.horizons(height, *np.unravel_index(pixels, height.shape), train)
     none = _smoother_and_error(encoded, theta, train, lobe, None)[1]
     scores = {}
     for scale in shadows.SCALES:
