@@ -42,12 +42,17 @@ class Geometry:
     led_exponent : float
         ``k`` of the near light's ``cos^k`` emission about its axis (straight down), one value
         per capture (:func:`ltmstore.stages.surface.choose_led_exponent`); 0: no beam.
+    sampled : ndarray of shape (M, ndim), optional
+        Where each cell's samples were taken: the mean light position of the frames binned into
+        it (NaN where none), in C order of the cells. A cell's sample is the mean of frames
+        anywhere inside it; a model that fits light positions fits it there, not at the centre.
     """
 
     lattice: Lattice
     height: float = 1.0
     pixels: np.ndarray | None = None
     led_exponent: float = 0.0
+    sampled: np.ndarray | None = None
 
     def take(self, rows: np.ndarray) -> Geometry:
         """The geometry of the batch rows ``rows`` (the same lattice; their pixel positions)."""
@@ -76,6 +81,14 @@ class Geometry:
         """Cell centres, ``(M, ndim)``, in C order of the cells."""
         grids = np.meshgrid(*(self.lattice.centres(i) for i in range(self.ndim)), indexing="ij")
         return np.column_stack([g.ravel() for g in grids])
+
+    def sample_positions(self) -> np.ndarray:
+        """Where each cell's samples were taken (:attr:`sampled`), the cell's centre where
+        unknown, ``(M, ndim)``."""
+        centres = self.positions()
+        if self.sampled is None:
+            return centres
+        return np.where(np.isfinite(self.sampled), self.sampled, centres)
 
     def directions(self) -> np.ndarray:
         """Unit vectors from the object centre to the light at each cell centre, ``(M, 3)``

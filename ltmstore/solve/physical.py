@@ -129,17 +129,20 @@ class Lights:
                        g=self.g[rows])
 
 
-def near_lights(geometry: Geometry, *, led_exponent: float | None = None) -> Lights:
+def near_lights(geometry: Geometry, *, led_exponent: float | None = None,
+                sampled: bool = False) -> Lights:
     """The light of every lattice cell as seen from every pixel of ``geometry.pixels``
     (read-only arrays: the last :data:`CACHED_LIGHTS` are kept, since a tile's held-out fold
     and its fit see the same pixels); the LED's ``cos^led_exponent`` beam (None: the
-    geometry's ``led_exponent``)."""
+    geometry's ``led_exponent``); ``sampled``: at each cell's samples' mean light position
+    (:meth:`Geometry.sample_positions`), not its centre."""
     if led_exponent is None:
         led_exponent = geometry.led_exponent
     if geometry.pixels is None:
         raise LtmError("method 'physical' needs each pixel's position on the object plane: "
                        "declare the object's extent in acquisition.json ('object')")
-    rs = np.ascontiguousarray(geometry.positions()[:, :2], dtype=np.float32)
+    cells = geometry.sample_positions() if sampled else geometry.positions()
+    rs = np.ascontiguousarray(cells[:, :2], dtype=np.float32)
     pixels = np.ascontiguousarray(geometry.pixels, dtype=np.float32)
     if COMPILED:  # the same values without NumPy's temporaries
         from ltmstore.solve import physical_near
@@ -484,14 +487,20 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     -------
     surface : Surface
     model : ndarray, shape (n, R * S)
-        The model over the whole lattice (``(n, len(at))``: at the cells ``at``).
+        The model over the whole lattice (``(n, len(at))``: at the cells ``at``), at the
+        cells' centres.
+    fitted : tuple of ndarray
+        The observed cells (flat indices) and the model there, ``(n, len(cells))``, where
+        their samples were taken (``geometry.sampled``): what the residual is taken against.
     """
     n = len(samples)
     flat = samples.reshape(n, -1)
     observed_all = np.isfinite(flat)
     cells = np.flatnonzero(observed_all.any(axis=0))
     lights_all = near_lights(geometry, led_exponent=led_exponent)
-    lights = lights_all.take(cells)
+    seen = lights_all if geometry.sampled is None else near_lights(
+        geometry, led_exponent=led_exponent, sampled=True)
+    lights = seen.take(cells)  # fitted where the samples were taken
     # np.take keeps rows contiguous (flat[:, cells] is laid out column-major, and every
     # Levenberg-Marquardt call copied it for the kernel)
     observed = np.take(observed_all, cells, axis=1)
@@ -509,7 +518,8 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     normal = unit_normal(best[:, 0], best[:, 1])
     surface = Surface(normal=normal, albedo=best[:, 2], specular=best[:, 3],
                       roughness=np.exp(best[:, 4]), ambient=best[:, 5], evidence=evidence)
-    return surface, _model(best, lights_all if at is None else lights_all.take(at))
+    model = _model(best, lights_all if at is None else lights_all.take(at))
+    return surface, model, (cells, _model(best, lights))
 
 
 def _lobes(theta: np.ndarray, lights: Lights) -> np.ndarray:
@@ -647,26 +657,21 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
         *(None if v is None else hashlib.sha1(np.ascontiguousarray(
             v, dtype=np.float64).tobytes()).hexdigest() for v in (start, at)))
     cached = None if key is None else _FITS.get(key)
-    surface, model, damped = cached or (*fit_surface(
+    surface, model, fitted, damped = cached or (*fit_surface(
         samples, geometry, led_exponent=led_exponent, n_iter=n_iter, share=share,
         start=start, at=cols), None)
     out = model if at is None else model[:, np.searchsorted(cols, at)]
     if residual > 0:
         if damped is None:
-            res = flat - model if at is None else _at_columns(flat, cols, model)
+            res = np.full(flat.shape, np.nan, dtype=np.result_type(flat, model))
+            seen, at_seen = fitted
+            res[:, seen] = flat[:, seen] - at_seen
             damped = damped_residual(res.reshape(samples.shape), geometry, damp_cells=damp_cells,
                                      at=at)
         out = out + residual * damped
     if key is not None:
-        _FITS.put(key, (surface, model, damped))
+        _FITS.put(key, (surface, model, fitted, damped))
     return out.reshape(samples.shape if at is None else out.shape).astype(np.float32), surface
-
-
-def _at_columns(flat: np.ndarray, cols: np.ndarray, model: np.ndarray) -> np.ndarray:
-    """``flat - model`` where ``model`` holds only the columns ``cols`` (NaN elsewhere)."""
-    res = np.full(flat.shape, np.nan, dtype=np.result_type(flat, model))
-    res[:, cols] = flat[:, cols] - model
-    return res
 
 
 # The fit does not depend on the residual's weight: the choice of that weight
@@ -681,7 +686,7 @@ CACHED_ROWS = 512  # ... batches of at most this many pixels (a tile is solved o
 
 def _fit_key(samples: np.ndarray, geometry: Geometry, *params) -> tuple:
     digest = hashlib.sha1(np.ascontiguousarray(samples).tobytes())
-    for array in (geometry.pixels, geometry.positions()):
+    for array in (geometry.pixels, geometry.positions(), geometry.sampled):
         digest.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
     return (digest.hexdigest(), samples.shape, str(samples.dtype), geometry.height,
             geometry.led_exponent, params)

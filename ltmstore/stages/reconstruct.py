@@ -801,7 +801,8 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     sampling = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k,
                 "M": binning.m, "sampling_ratio": binning.ratio,
                 "path_density": path_length(r, s, valid=valid) / plane.area}
-    solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height), plan=plan,
+    solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height,
+                                        sampled=_sampled(binning, r, s)), plan=plan,
                       sampling=sampling, key=key, method=method, params=params, auto=auto,
                       color=color, progress=progress, light_major=light_major, form=form)
     place = partial(_place, group, plan, binning, r, s, plane, method)
@@ -841,6 +842,16 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     if placed["extent"] is not None:
         _create_surface_maps(group, plan)
     return _solve_stage(group, client, **solve_args, **placed, timings=timings, resumed=False)
+
+
+def _sampled(binning: Binning, r: np.ndarray, s: np.ndarray) -> np.ndarray | None:
+    """Each cell's samples' mean light position on a lattice of the plane (the surface
+    model fits them there), None on a 6-D lattice."""
+    if len(binning.lattice.shape) != 2:
+        return None
+    from ltmstore.stages.placement import light_positions
+
+    return light_positions(binning, r, s)
 
 
 def _place(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray, s: np.ndarray,

@@ -85,7 +85,7 @@ def test_it_recovers_the_normals(regimes):
     """Measured on the benign canvas: mean angular error 0.065 degrees, against 0.68 for the
     flat normal (0, 0, 1)."""
     r = regimes["benign"]
-    surface, _ = physical.fit_surface(r.samples, r.geometry)
+    surface, _, _ = physical.fit_surface(r.samples, r.geometry)
     truth = make_scene("canvas", size=16).normals().reshape(3, -1).T
     error = np.degrees(np.arccos(np.clip((surface.normal * truth).sum(axis=1), -1, 1)))
     flat = np.degrees(np.arccos(truth[:, 2]))
@@ -127,3 +127,28 @@ def test_degenerate_pixels_stay_finite(regimes):
     assert np.isfinite(out).all()
     assert np.abs(out[0]).max() < 1e-6
     assert np.abs(out[1] - 0.3).max() < 0.3
+
+
+def test_it_is_fitted_where_the_samples_were_taken(regimes):
+    """A cell's sample is the mean of frames anywhere inside it: rendered here at positions up
+    to 0.4 cell off the centres (the LED's cos^2 beam steepens the fall-off), fitted there and
+    evaluated at the centres. Measured: 41.1 dB against 32.5 when fitted at the centres (on
+    the 720 px simulated canvas the same change gained 2.7 dB, 4.0 with the beam)."""
+    from dataclasses import replace
+
+    r = regimes["benign"]
+    rng = np.random.default_rng(3)
+    centres = r.geometry.positions()
+    offset = rng.uniform(-0.4, 0.4, centres.shape) * np.asarray(r.geometry.lattice.deltas)
+    at = replace(r.geometry, sampled=centres + offset, led_exponent=2.0)
+    n = len(r.samples)
+    theta = np.column_stack([rng.normal(0, 0.1, n), rng.normal(0, 0.1, n),
+                             rng.uniform(0.2, 1, n), rng.uniform(0.05, 0.2, n),
+                             np.log(rng.uniform(0.1, 0.4, n)), np.full(n, 0.01)])
+    truth = physical._model(theta, physical.near_lights(at)).reshape(r.samples.shape)
+    seen = physical._model(theta, physical.near_lights(at, sampled=True))
+    samples = np.where(np.isfinite(r.samples.reshape(n, -1)), seen, np.nan)
+    samples = samples.reshape(r.samples.shape)
+    fitted = snr_db(truth, physical.solve(samples, at))
+    centred = snr_db(truth, physical.solve(samples, replace(at, sampled=None)))
+    assert fitted > 40.5 and fitted > centred + 7, (fitted, centred)
