@@ -18,6 +18,13 @@ cast shadows and interreflections out of the fit. The model and its Jacobian are
 float32, the normal equations solved in float64: 40 % less CPU per tile than all float64, the
 same SNR (a 32 x 32 pixel tile of the relief: 0.6 s against 1.1 s, 37.37 dB both).
 
+A cell's sample is the mean of frames lit anywhere inside it, not at its centre: where
+``geometry.sampled`` gives each cell's mean light position, the model is fitted there (and
+the residual taken there), and evaluated at the centres, where the LTM lives. On the 720 px
+simulated canvas (16 x 16 lattice, 2.5 cm cells at 30 cm) fitting at the centres had cost 2.7
+dB of SNR_Y, 4.0 dB under the LED's ``cos^2`` beam, whose steeper fall-off the offsets weigh
+more.
+
 The model is what fills the holes: a handheld path leaves the same cells unobserved for every
 pixel, but a pixel's normal and albedo are seen in its diffuse shading everywhere, and the model
 puts its highlight where the geometry says it is. Two more things make it a prior rather than a
