@@ -465,8 +465,8 @@ def render_colour(theta: np.ndarray, lights: Lights) -> np.ndarray:
 
 def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None = None,
                 n_iter: int = N_ITER, robust: bool = True, share: bool = True,
-                start: np.ndarray | None = None,
-                at: np.ndarray | None = None) -> tuple[Surface, np.ndarray]:
+                start: np.ndarray | None = None, at: np.ndarray | None = None,
+                at_samples: bool = False) -> tuple[Surface, np.ndarray]:
     """Fit the model to each pixel's observed cells.
 
     Parameters
@@ -489,13 +489,16 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
         see :func:`fit_parameters`).
     at : ndarray of int, optional
         Flat indices of the only cells where the model is wanted.
+    at_samples : bool
+        With ``at``: the model where those cells' samples were taken (``geometry.sampled``),
+        which a held-out fold compares it with, not at their centres.
 
     Returns
     -------
     surface : Surface
     model : ndarray, shape (n, R * S)
         The model over the whole lattice (``(n, len(at))``: at the cells ``at``), at the
-        cells' centres.
+        cells' centres (``at_samples``: where their samples were taken).
     fitted : tuple of ndarray
         The observed cells (flat indices) and the model there, ``(n, len(cells))``, where
         their samples were taken (``geometry.sampled``): what the residual is taken against.
@@ -525,7 +528,8 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     normal = unit_normal(best[:, 0], best[:, 1])
     surface = Surface(normal=normal, albedo=best[:, 2], specular=best[:, 3],
                       roughness=np.exp(best[:, 4]), ambient=best[:, 5], evidence=evidence)
-    model = _model(best, lights_all if at is None else lights_all.take(at))
+    wanted = lights_all if at is None else (seen if at_samples else lights_all).take(at)
+    model = _model(best, wanted)
     return surface, model, (cells, _model(best, lights))
 
 
@@ -600,7 +604,7 @@ def damped_residual(residual: np.ndarray, geometry: Geometry, *,
 def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None = None,
           share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
           n_iter: int = N_ITER, start: np.ndarray | None = None,
-          at: np.ndarray | None = None) -> np.ndarray:
+          at: np.ndarray | None = None, at_samples: bool = False) -> np.ndarray:
     """Reconstruct a batch of near-light LTFs with the physical model (see the module).
 
     Parameters
@@ -628,6 +632,10 @@ def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None
     at : ndarray of int, optional
         Flat indices of the only cells wanted (a held-out fold's hidden cells:
         :func:`ltmstore.solve.validate.heldout_error`); the fit is the same.
+    at_samples : bool
+        With ``at``: the model there where those cells' samples were taken
+        (``geometry.sampled``), as a held-out fold of the expected error compares it with them
+        (:func:`ltmstore.solve.confidence.expected_error`), not at the cells' centres.
 
     Returns
     -------
@@ -635,13 +643,14 @@ def solve(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None
     """
     return solve_surface(samples, geometry, led_exponent=led_exponent, share=share,
                          residual=residual, damp_cells=damp_cells, n_iter=n_iter,
-                         start=start, at=at)[0]
+                         start=start, at=at, at_samples=at_samples)[0]
 
 
 def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None = None,
                   share: bool = True, residual: float = 0.5, damp_cells: float = DAMP_CELLS,
                   n_iter: int = N_ITER, start: np.ndarray | None = None,
-                  at: np.ndarray | None = None) -> tuple[np.ndarray, Surface]:
+                  at: np.ndarray | None = None,
+                  at_samples: bool = False) -> tuple[np.ndarray, Surface]:
     """:func:`solve`, and the fitted :class:`Surface` behind it."""
     if not 0.0 <= residual <= 1.0:
         raise LtmError(f"physical residual weight {residual!r} must lie in [0, 1]")
@@ -660,13 +669,13 @@ def solve_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: floa
     # with `at`, the model where the residual is (the observed cells) and where it is wanted
     cols = None if at is None else np.union1d(np.flatnonzero(np.isfinite(flat).any(axis=0)), at)
     key = None if len(samples) > CACHED_ROWS else _fit_key(  # a tile is fitted once: no key
-        samples, geometry, led_exponent, n_iter, share, damp_cells,
+        samples, geometry, led_exponent, n_iter, share, damp_cells, at_samples,
         *(None if v is None else hashlib.sha1(np.ascontiguousarray(
             v, dtype=np.float64).tobytes()).hexdigest() for v in (start, at)))
     cached = None if key is None else _FITS.get(key)
     surface, model, fitted, damped = cached or (*fit_surface(
         samples, geometry, led_exponent=led_exponent, n_iter=n_iter, share=share,
-        start=start, at=cols), None)
+        start=start, at=cols, at_samples=at_samples), None)
     out = model if at is None else model[:, np.searchsorted(cols, at)]
     if residual > 0:
         if damped is None:

@@ -135,7 +135,8 @@ def as_method(method: str | Method) -> Method:
 def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method, *,
                   folds: int = 5, seed: int = 0, params: dict | None = None,
                   fraction: float | None = None, block: int = 1,
-                  keep_prediction: bool = False, per_pixel: dict | None = None) -> HeldOut:
+                  keep_prediction: bool = False, per_pixel: dict | None = None,
+                  at_samples: bool = False) -> HeldOut:
     """Cross-validated error of ``method`` on a batch of binned LTFs (no ground truth needed).
 
     Parameters
@@ -158,6 +159,11 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
     per_pixel : dict, optional
         Keyword arguments of the method with one row per pixel of ``samples`` (physical's
         ``start``), given to each fold's fit for the pixels it fits.
+    at_samples : bool
+        Predict each hidden cell where its samples were taken, for a method that knows the light
+        positions (:func:`ltmstore.solve.physical.solve`'s ``at_samples``); others predict at
+        the cells' centres. (The model choices keep the centres: see
+        :func:`ltmstore.solve.confidence.expected_error`.)
 
     Returns
     -------
@@ -186,7 +192,8 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         # scored at the cells some row hides (a tenth of the lattice, or fewer), not all
         cols = np.flatnonzero(hides.any(axis=0))
         scored = hides[:, cols]
-        pred = _predict(solve, train, geometry.take(rows), scored, cols, {**params, **rowwise})
+        pred = _predict(solve, train, geometry.take(rows), scored, cols, {**params, **rowwise},
+                        at_samples=at_samples)
         truth = batch.reshape(len(rows), -1)[:, cols].astype(np.float64)
         err = np.where(scored, pred - truth, 0.0)
         if keep_prediction:
@@ -206,21 +213,24 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
 
 
 def _predict(solve: Method, train: np.ndarray, geometry: Geometry, scored: np.ndarray,
-             cols: np.ndarray, params: dict) -> np.ndarray:
+             cols: np.ndarray, params: dict, *, at_samples: bool = False) -> np.ndarray:
     """A fold's prediction at the flat cells ``cols`` ``(n, len(cols))`` (float64); ``scored``:
     which of them each row hides. Where every row hides all of them and the method takes ``at``
     (:func:`ltmstore.solve.physical.solve`, :func:`ltmstore.solve.rbf.solve`), computed at those
-    cells alone, else everywhere and then taken there."""
-    if scored.all() and _takes_at(solve):
+    cells alone, else everywhere and then taken there; ``at_samples``: where the cells' samples
+    were taken, by a method that takes it."""
+    if at_samples and _takes(solve, "at_samples"):
+        pred = solve(train, geometry, **params, at=cols, at_samples=True)
+    elif scored.all() and _takes(solve, "at"):
         pred = solve(train, geometry, **params, at=cols)
     else:
         pred = np.asarray(solve(train, geometry, **params)).reshape(len(train), -1)[:, cols]
     return np.asarray(pred, dtype=np.float64).reshape(len(train), len(cols))
 
 
-def _takes_at(solve: Method) -> bool:
+def _takes(solve: Method, name: str) -> bool:
     try:
-        return "at" in inspect.signature(solve).parameters
+        return name in inspect.signature(solve).parameters
     except (TypeError, ValueError):  # a callable without a signature
         return False
 

@@ -46,8 +46,8 @@ def test_factored_ltm_equals_the_dense_one_within_its_recorded_snr(factored_stor
     assert ds["ltm"].chunks is not None  # lazy (Dask), derived from the factors
     measured = snr_db(dense["ltm"].values, ds["ltm"].values)
     assert measured == pytest.approx(info["snr_db"], abs=0.01)
-    assert 42.2 <= info["snr_db"] < 42.8  # measured 42.49 dB by the default held-out threshold
-    assert info["ranks"]["ltm"]["max"] <= 16  # measured 4 tiles of ranks up to 16 of 256 cells
+    assert 50.5 <= info["snr_db"] < 51.5  # measured 51.03 dB by the default held-out threshold
+    assert info["ranks"]["ltm"]["max"] <= 26  # measured 4 tiles of ranks 18-26 of 256 cells
     np.testing.assert_allclose(ds["ltm_by_light"].values, ds["ltm"].values, rtol=1e-5,
                                atol=1e-7)  # the same product, summed in another order
     recorded = store_summary(store)["compact"]
@@ -61,14 +61,15 @@ def test_the_factors_lose_little_against_the_truth(factored_store, small_store,
     against the simulation's truth the factors lose little. A rule that cuts into the signal
     fails this: leaving out 0.5 of the held-out error's energy (ranks 7-10) lost 0.94 dB, 0.6
     lost 1.33 dB, when the dense LTM stood at 30.10 dB. Since the surface model is fitted where
-    the samples were taken, the dense LTM stands at 42.92 dB, below the held-out error the
-    threshold takes for noise: the factors lose 2.76 dB."""
+    the samples were taken, the dense LTM stands at 42.92 dB; its held-out error scored at the
+    cells' centres (3.8 %) took the fall-off across a cell for noise, and the factors lost 2.76
+    dB; scored where the samples were taken (1.0 %), they lose 0.02 dB."""
     from ltmstore.judge.evaluate import compare_stores
 
     truth = small_acquisition / "truth.zarr"
     dense = compare_stores(small_store, truth)["snr_y_db"]
     found = compare_stores(factored_store[0], truth)["snr_y_db"]
-    assert dense - 3.0 < found <= dense and found > 39.9  # measured 40.16 against 42.92 dB
+    assert dense - 0.1 < found <= dense + 0.05 and found > 42.8  # measured 42.90 against 42.92
 
 
 def test_tiles_that_do_not_divide_the_image_read_back(small_store, tmp_path):
@@ -89,7 +90,7 @@ def test_factors_take_fewer_bytes_than_the_dense_ltm(factored_store, small_store
     store, _ = factored_store
     dense = folder_bytes(small_store / "ltm")
     factors = folder_bytes(store / "ltm_weights") + folder_bytes(store / "ltm_basis")
-    assert factors < 0.15 * dense  # measured 0.125 (16 x 16 px tiles of 256 cells: ranks 10-14)
+    assert factors < 0.23 * dense  # measured 0.214 (16 x 16 px tiles of 256 cells: ranks 18-26)
     assert folder_bytes(store) < folder_bytes(small_store)
 
 
