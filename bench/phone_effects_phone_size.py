@@ -465,7 +465,8 @@ def merge(args) -> None:
     result = {"issue": 63, "item": 1, "version": __version__,
               "python": platform.python_version(), "cpus": os.cpu_count(),
               "command": "python bench/phone_effects_phone_size.py " + " ".join(sys.argv[1:]),
-              "settings": {k: v for k, v in vars(args).items() if k not in ("out", "work")},
+              "settings": {k: v for k, v in vars(args).items()
+                           if k not in ("out", "work", "name")},
               "oracles": ORACLE, "rows": rows, "table": table(rows)}
     if args.frame_check:
         result["distortion_round_trip"] = {
@@ -473,8 +474,8 @@ def merge(args) -> None:
             if (work / f"{scene}_distortion" / "raw" / "intrinsics_b.json").exists()}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "phone_effects_phone_size.json").write_text(json.dumps(result, indent=2) + "\n")
-    chart(rows, out / "phone_effects_phone_size.png")
+    (out / f"{args.name}.json").write_text(json.dumps(result, indent=2) + "\n")
+    chart(rows, out / f"{args.name}.png")
     print("\n".join(result["table"]))
 
 
@@ -483,6 +484,8 @@ def main() -> None:
     parser.add_argument("--work", required=True, help="work folder (kept: captures, parts)")
     parser.add_argument("--out", default="bench/results")
     parser.add_argument("--merge", action="store_true", help="gather the parts, write JSON+PNG")
+    parser.add_argument("--name", default="phone_effects_phone_size",
+                        help="the merged results' file name, without .json / .png")
     parser.add_argument("--scenes", nargs="+", default=["canvas"],
                         help="scenes; SCENE-mismatched renders it with physics the product does "
                         "not assume (ltmstore.synthetic.render.MISMATCHED)")

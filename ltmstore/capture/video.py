@@ -32,11 +32,29 @@ from ltmstore.core import memory
 from ltmstore.core.errors import LtmError
 from ltmstore.core.transfer import transfer_lut
 
-__all__ = ["ALLOW_OPTION", "ThreadedDecodeUnclean", "VideoReader", "threaded_first",
-           "transfer_lut"]  # transfer_lut: re-exported
+__all__ = ["ALLOW_OPTION", "ThreadedDecodeUnclean", "VideoReader", "codec_warning",
+           "threaded_first", "transfer_lut"]  # transfer_lut: re-exported
 
 ALLOW_OPTION = "--allow-dropped-frames"
 T = TypeVar("T")
+LOSSLESS_CODECS = frozenset({"ffv1", "rawvideo", "huffyuv", "ffvhuff", "utvideo", "magicyuv",
+                             "png", "qtrle"})
+# H.264 cost a simulated 720 px canvas's LTM (20 s, 42.2 dB uncompressed) 8.8 dB of SNR_Y at a
+# phone's usual 0.27 bits per pixel, 3.8 at 1, 2.6 at 2 and 1.6 at 4 (bench/codec_bitrate.py;
+# docs/two-phones.md, "Record at a high bitrate"): below 2, ingest warns.
+FAIR_BITS_PER_PIXEL = 2.0
+
+
+def codec_warning(encoding: dict) -> str | None:
+    """A line for the user where camera B's video (:meth:`VideoReader.encoding`) is lossy below
+    :data:`FAIR_BITS_PER_PIXEL`, else None."""
+    bpp, codec = encoding.get("bits_per_pixel"), encoding.get("codec")
+    if codec in LOSSLESS_CODECS or bpp is None or bpp >= FAIR_BITS_PER_PIXEL:
+        return None
+    return (f"camera B's video is {codec} at {bpp:.2f} bits per pixel: H.264 below "
+            f"{FAIR_BITS_PER_PIXEL:g} cost a simulated capture's LTM 2.6 dB or more (8.8 dB at a "
+            f"phone's usual 0.27; docs/two-phones.md, \"Record at a high bitrate\"): where the "
+            f"phone offers a higher bitrate or ProRes, record with it")
 
 
 class ThreadedDecodeUnclean(Exception):
@@ -117,6 +135,15 @@ class VideoReader:
         if self._container.duration:
             return round(self._container.duration / av.time_base * self.fps)
         return None
+
+    def encoding(self) -> dict:
+        """The video's codec (FFmpeg's name) and its bits per pixel: the stream's bit rate (the
+        container's where the stream does not say) over its pixels per second (None: unknown)."""
+        context = self._stream.codec_context
+        rate = self._stream.bit_rate or self._container.bit_rate
+        pixels = context.width * context.height * self.fps
+        return {"codec": context.name,
+                "bits_per_pixel": round(rate / pixels, 4) if rate and pixels > 0 else None}
 
     def __enter__(self) -> VideoReader:
         return self

@@ -341,11 +341,15 @@ def cmd_simulate_raw(a: argparse.Namespace) -> None:
 
 def cmd_ingest(a: argparse.Namespace) -> None:
     refuse_classic_capture(a.acquisition, a.store)
+    from ltmstore.capture.video import codec_warning
     from ltmstore.stages.ingest import ingest
 
-    print_json(ingest(a.acquisition, a.store, overwrite=a.overwrite,
-                      allow_dropped=a.allow_dropped_frames,
-                      exposure_locked=a.exposure_locked, keep_chroma=a.keep_chroma))
+    record = ingest(a.acquisition, a.store, overwrite=a.overwrite,
+                    allow_dropped=a.allow_dropped_frames, exposure_locked=a.exposure_locked,
+                    keep_chroma=a.keep_chroma)
+    print_json(record)
+    if warning := codec_warning(record.get("video") or {}):
+        print(f"ltm: warning: {warning}", file=sys.stderr)
 
 
 def refuse_classic_capture(acquisition: str, store: str) -> None:

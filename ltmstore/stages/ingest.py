@@ -197,7 +197,7 @@ def _write_frames(acq: Acquisition, store: str | os.PathLike, rig: ViewRig | Non
                    "frames": round(time.perf_counter() - scanned, 3)}
         info = {"fps": video.fps, "frame_size": list(sink.shape), "z_tolerance": z_tolerance,
                 "time_offset": acq.time_offset, "chunk_frames": chunk_frames, "timings": timings,
-                "dropped_frames": dict(video.dropped)}
+                "dropped_frames": dict(video.dropped), "video": video.encoding()}
         if corrections is not None:
             info.update(corrections.record)
         if rig is not None:
