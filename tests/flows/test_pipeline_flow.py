@@ -145,7 +145,9 @@ def test_regularisation_and_confidence_are_chosen_and_stored(flow_run):
     # the simulation declares the object's extent, so the near-light surface model competes;
     # it wins the relief's tile (truth SNR_Y 30.1 dB against rbf's 22.3 without the extent)
     assert rec["methods_per_tile"] == {"physical": tiles}
-    assert 0.025 < np.median(error) < 0.035  # measured 0.030 (rbf's: 0.037)
+    # measured 0.0064, scored where the hidden cells' samples were taken (0.030 at their centres,
+    # where the light's fall-off across a cell counted as error; rbf's: 0.037)
+    assert 0.0055 < np.median(error) < 0.0075
 
 
 def test_ltm_evaluate_reports_heldout_and_truth(flow_run, small_acquisition, tmp_path):
