@@ -141,9 +141,9 @@ def expected_error(samples: np.ndarray, geometry: Geometry, method: str | Method
 
     A model that knows the light positions (physical) is scored where each hidden cell's samples
     were taken, not at its centre: the light's fall-off changes by tens of per cent across a
-    cell, and scored at the centres the map of the tests' small relief read 3.8 % where the
-    samples stood 1.0 % from the model (and ``ltm reconstruct --form factored`` took that for
-    noise: its factors lost 2.8 dB against the truth). The model choices
+    cell, and scored at the centres the map of the tests' small relief had a median of 3.0 %,
+    where the samples stand 0.64 % from the model (``ltm reconstruct --form factored`` took that
+    for noise: its factors lost 2.8 dB against the truth). The model choices
     (:mod:`ltmstore.solve.select`) still score at the centres: scored at the samples they chose
     a full residual there, 2.4 dB below the truth's choice.
 
