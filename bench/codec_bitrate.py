@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from phone_effects_phone_size import git_diff_stat, measure, read_frames  # noqa: E402
 
 from ltmstore import __version__  # noqa: E402
+from ltmstore.capture.video import VideoReader  # noqa: E402
 from ltmstore.synthetic import writer  # noqa: E402
 
 BITS_PER_PIXEL = (0.27, 0.5, 1.0, 2.0, 4.0)  # 0.27: a phone's default H.264 (phone_effects)
@@ -42,7 +43,9 @@ def encode(capture: Path, folder: Path, bits_per_pixel: float) -> dict:
     video = src / meta["video"]
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copy2(src / meta["poses"], folder / meta["poses"])
-    first, fps = next(read_frames(video)), frame_rate(video)
+    with VideoReader(video) as reader:
+        fps = reader.fps
+    first = next(read_frames(video))
     bitrate = bits_per_pixel * first.shape[0] * first.shape[1] * fps
     start = time.perf_counter()
     n = writer.write_h264(folder / "video.mp4", read_frames(video), fps=fps,
@@ -51,14 +54,6 @@ def encode(capture: Path, folder: Path, bits_per_pixel: float) -> dict:
                                                         indent=2))
     return {"frames": n, "bitrate_bit_s": int(bitrate), "encode_s": time.perf_counter() - start,
             "bytes": (folder / "video.mp4").stat().st_size}
-
-
-def frame_rate(video: Path) -> float:
-    """The video's frames per second."""
-    import av
-
-    with av.open(str(video)) as container:
-        return float(container.streams.video[0].average_rate)
 
 
 def chart(rows: list[dict], reference: dict, path: Path) -> None:

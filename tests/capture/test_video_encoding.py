@@ -60,10 +60,10 @@ def test_ingest_records_the_codec_and_warns_below_a_fair_bitrate(small_acquisiti
     folder.mkdir()
     os.link(small_acquisition / meta["poses"], folder / meta["poses"])
     with VideoReader(small_acquisition / meta["video"]) as video:
-        size, fps = video.encoding(), video.fps
+        source, fps = video.encoding(), video.fps
         write_h264(folder / "video.mp4", iter(video), fps=fps,
                    bitrate=int(0.3 * 32 * 32 * fps))
-    assert size["codec"] == "ffv1"
+    assert source["codec"] == "ffv1"
     (folder / "acquisition.json").write_text(json.dumps({**meta, "video": "video.mp4"}))
     done = run_ltm("ingest", folder, tmp_path / "s.zarr")
     assert done.returncode == 0, done.stderr
