@@ -64,3 +64,41 @@ def bin_positions(lattice: Lattice, positions: tuple[np.ndarray, ...],
     used = cell[cell >= 0]
     count = np.bincount(used, minlength=lattice.size).reshape(lattice.shape)
     return Binning(lattice=lattice, cell=cell, count=count)
+
+
+def segments(binning: Binning, times: np.ndarray, seconds: float) -> np.ndarray:
+    """The stretch of the capture, ``seconds`` long, in which each cell took most of its
+    frames: ``(M,)`` int, -1 where it took none.
+
+    Neighbouring cells of a handheld path taken within the same second share their errors (a
+    codec's key-frame interval, a hand's wobble of the beam); a held-out test that hides the
+    cells of whole stretches together is not fooled by them
+    (:func:`ltmstore.solve.validate.split_folds`'s ``groups``).
+    """
+    used = binning.cell >= 0
+    if not used.any():
+        return np.full(binning.m, -1)
+    times = np.asarray(times, dtype=np.float64)[used]
+    stretch = np.floor((times - times.min()) / seconds).astype(np.int64)
+    cells = binning.cell[used]
+    width = int(stretch.max()) + 1
+    votes = np.bincount(cells * width + stretch, minlength=binning.m * width)
+    votes = votes.reshape(binning.m, width)
+    return np.where(votes.any(axis=1), votes.argmax(axis=1), -1)
+
+
+def revisited(segment: np.ndarray) -> float:
+    """The fraction of a lattice's observed cells (``segment`` >= 0, lattice-shaped) beside
+    which (any of the eight neighbours) the path passed in another stretch: where it is low, the
+    passes lie apart and a hidden stretch has nothing of another second near it."""
+    observed = segment >= 0
+    if not observed.any():
+        return 0.0
+    padded = np.pad(segment, 1, constant_values=-1)
+    other = np.zeros(segment.shape, dtype=bool)
+    rows, cols = segment.shape
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            near = padded[1 + dy:1 + dy + rows, 1 + dx:1 + dx + cols]
+            other |= (near >= 0) & (near != segment)
+    return float((other & observed).sum() / observed.sum())

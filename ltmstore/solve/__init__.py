@@ -46,6 +46,10 @@ class Geometry:
         Where each cell's samples were taken: the mean light position of the frames binned into
         it (NaN where none), in C order of the cells. A cell's sample is the mean of frames
         anywhere inside it; a model that fits light positions fits it there, not at the centre.
+    segment : ndarray of shape (M,), optional
+        The stretch of a handheld capture (a second of its video) in which each cell took most
+        of its frames, -1 where none (:func:`ltmstore.core.binning.segments`): the held-out
+        choice of a regularisation hides whole stretches together.
     """
 
     lattice: Lattice
@@ -53,6 +57,7 @@ class Geometry:
     pixels: np.ndarray | None = None
     led_exponent: float = 0.0
     sampled: np.ndarray | None = None
+    segment: np.ndarray | None = None
 
     def take(self, rows: np.ndarray) -> Geometry:
         """The geometry of the batch rows ``rows`` (the same lattice; their pixel positions)."""

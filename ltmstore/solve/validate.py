@@ -76,8 +76,17 @@ def check_split(folds: int, fraction: float | None, block: int) -> float:
     return fraction
 
 
-def _blocks(mask: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
-    """Block id of every lattice cell ``(M,)`` and the observed blocks of each row ``(n, B)``."""
+def _blocks(mask: np.ndarray, block: int,
+            groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Block id of every lattice cell ``(M,)`` and the observed blocks of each row ``(n, B)``;
+    the blocks are ``groups`` (a group per cell, -1 for none) where given."""
+    if groups is not None:  # the cells of no group form one more, never observed
+        ids = np.asarray(groups, dtype=np.int64).ravel()
+        ids = np.where(ids < 0, ids.max(initial=-1) + 1, ids)
+        member = np.zeros((ids.size, int(ids.max()) + 1))
+        member[np.arange(ids.size), ids] = 1.0
+        flat = mask.reshape(len(mask), -1) & (np.asarray(groups).ravel() >= 0)
+        return ids, flat.astype(np.float64) @ member > 0
     lattice = mask.shape[1:]
     nb = tuple(-(-s // block) for s in lattice)
     ids = np.ravel_multi_index(np.indices(lattice).reshape(len(lattice), -1) // block, nb)
@@ -89,7 +98,7 @@ def _blocks(mask: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, block: int = 1,
-                seed: int = 0) -> np.ndarray:
+                seed: int = 0, groups: np.ndarray | None = None) -> np.ndarray:
     """Which fold hides each observed cell: ``(n, *lattice)`` int, -1 for never hidden.
 
     Parameters
@@ -105,6 +114,9 @@ def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, 
     block : int
         Hide square blocks of ``block`` cells per side (1: single cells).
     seed : int
+    groups : ndarray of int, shape ``(M,)``, optional
+        Hide the cells of a group together instead of blocks (-1: a cell never hidden), e.g.
+        the stretches of a handheld path (:attr:`ltmstore.solve.Geometry.segment`).
 
     Returns
     -------
@@ -115,7 +127,7 @@ def split_folds(mask: np.ndarray, folds: int, *, fraction: float | None = None, 
     mask = np.asarray(mask, dtype=bool)
     shared = bool((mask == mask[:1]).all())
     rows = mask[:1] if shared else mask
-    ids, observed = _blocks(rows, block)
+    ids, observed = _blocks(rows, block, groups)
     keys = np.where(observed, np.random.default_rng([seed, 606]).random(observed.shape), np.inf)
     rank = np.empty_like(observed, dtype=np.int64)
     np.put_along_axis(rank, np.argsort(keys, axis=1),
@@ -136,7 +148,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
                   folds: int = 5, seed: int = 0, params: dict | None = None,
                   fraction: float | None = None, block: int = 1,
                   keep_prediction: bool = False, per_pixel: dict | None = None,
-                  at_samples: bool = False) -> HeldOut:
+                  at_samples: bool = False, groups: np.ndarray | None = None) -> HeldOut:
     """Cross-validated error of ``method`` on a batch of binned LTFs (no ground truth needed).
 
     Parameters
@@ -152,7 +164,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         Seed of the random choice of held-out cells.
     params : dict, optional
         Keyword arguments of the method.
-    fraction, block
+    fraction, block, groups
         See :func:`split_folds`.
     keep_prediction : bool
         Keep the prediction at every held-out cell (``HeldOut.prediction``).
@@ -175,7 +187,7 @@ def heldout_error(samples: np.ndarray, geometry: Geometry, method: str | Method,
         samples = samples.astype(np.float64)
     n = len(samples)
     mask = np.isfinite(samples)
-    fold = split_folds(mask, folds, fraction=fraction, block=block, seed=seed)
+    fold = split_folds(mask, folds, fraction=fraction, block=block, seed=seed, groups=groups)
     sq, count = np.zeros(n), np.zeros(n, dtype=np.int64)
     prediction = np.full((n, mask[0].size), np.nan) if keep_prediction else None
     ref = res = 0.0

@@ -27,6 +27,7 @@ from tqdm.auto import tqdm
 
 from ltmstore.core import checksum, factored, memory
 from ltmstore.core import store as st
+from ltmstore.core.binning import revisited, segments
 from ltmstore.core.dims import (
     CHROMA_CHANNELS,
     CHROMA_LTM,
@@ -91,6 +92,18 @@ TARGET_RATIO = 0.29  # the paper's sampling ratio; the automatic lattice aims at
 # A lattice given by the user that leaves K/M below this is refused unless forced: the solve
 # grows with M while all but a few cells are guessed (1000 x 1000 on a test capture: K/M 0.0003).
 MIN_RATIO = 0.02
+# The held-out choice of a regularisation (the surface model's residual weight) hides the cells
+# of whole seconds of a handheld video together: a phone's codec puts a key frame about every
+# second, and cells a second of the path took share its errors.
+SEGMENT_S = 1.0
+# ... where the path passed beside most of its cells in another second
+# (ltmstore.core.binning.revisited); where its passes lie apart, a hidden second has no other
+# pass near it and the residual's value cannot show: the cells are hidden one by one. On the
+# 720 px simulated canvas and relief, 16 x 16 lattice: 0.85 of the cells filmed for 20 s (path
+# density 32), where whole seconds hidden (and the model alone the default) relit 0.9-1.5 dB
+# above single cells; 0.37 filmed for 5 s (path density 8), where they relit 0.3-0.9 dB below;
+# the tests' 32 px relief filmed 8.7 s at path density 14: 0.55, the model alone 0.7 dB below.
+MIN_REVISITED = 0.7
 # A pixel's light transport is capped at this many times the brightest it was seen: a model may
 # put a highlight where no frame came near, but not one the data cannot bound. On 720 px
 # simulated captures the truth's peak over all cells was at most 2.8 (relief) and 8.6 (canvas,
@@ -801,8 +814,10 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     sampling = {"lattice": lat.to_json(), "lattice_choice": chosen, "K": binning.k,
                 "M": binning.m, "sampling_ratio": binning.ratio,
                 "path_density": path_length(r, s, valid=valid) / plane.area}
+    segment, sampling["revisited"] = _segments(group, binning)
     solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height,
-                                        sampled=_sampled(binning, r, s)), plan=plan,
+                                        sampled=_sampled(binning, r, s), segment=segment),
+                      plan=plan,
                       sampling=sampling, key=key, method=method, params=params, auto=auto,
                       color=color, progress=progress, light_major=light_major, form=form)
     place = partial(_place, group, plan, binning, r, s, plane, method)
@@ -852,6 +867,19 @@ def _sampled(binning: Binning, r: np.ndarray, s: np.ndarray) -> np.ndarray | Non
     from ltmstore.stages.placement import light_positions
 
     return light_positions(binning, r, s)
+
+
+def _segments(group: zarr.Group, binning: Binning) -> tuple[np.ndarray | None, float | None]:
+    """The second of a handheld video (:data:`SEGMENT_S`) in which each cell took most of its
+    frames (:func:`ltmstore.core.binning.segments`), None where the path was revisited beside
+    fewer than :data:`MIN_REVISITED` of its cells; and that fraction (None for photographs or a
+    6-D lattice)."""
+    if (group.attrs.get("acquisition", {}).get("source") != "video"
+            or len(binning.lattice.shape) != 2):
+        return None, None
+    segment = segments(binning, group["t"][:], SEGMENT_S)
+    fraction = revisited(segment.reshape(binning.lattice.shape))
+    return (segment if fraction >= MIN_REVISITED else None), fraction
 
 
 def _place(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray, s: np.ndarray,

@@ -120,6 +120,19 @@ def test_folds_follow_per_pixel_masks_and_blocks():
         assert (blocks == f).sum() == 16 * tiles.sum() > 0
 
 
+def test_folds_hide_whole_groups():
+    mask = np.broadcast_to(random_mask(0.5, seed=6), (3, *LATTICE))
+    groups = np.arange(mask[0].size) // 10  # runs of ten cells in C order
+    groups[:5] = -1  # cells of no group are never hidden
+    fold = split_folds(mask, 2, seed=1, groups=groups)[0].ravel()
+    assert (fold[:5] == -1).all() and (fold[~mask[0].ravel()] == -1).all()
+    observed = mask[0].ravel()
+    for g in np.unique(groups[groups >= 0]):
+        members = np.unique(fold[(groups == g) & observed])
+        assert len(members) <= 1  # a group's observed cells share one fold
+    assert {0, 1} <= set(np.unique(fold))
+
+
 def test_bad_fold_arguments_are_clear_errors():
     mask = np.ones((1, *LATTICE), bool)
     with pytest.raises(LtmError, match="folds 0 must be a positive integer"):

@@ -252,10 +252,11 @@ def test_reconstruction_of_a_drifting_capture_with_room_light(long_capture, long
         ltm = xr.open_zarr(tmp_path / f"{name}.zarr", consolidated=False)["ltm"].values
         snr[name] = snr_db(truth, ltm * (np.sum(ltm * truth) / np.sum(ltm * ltm)))
     assert record["drift"]["corrected"] and record["ambient"]["measured"], record
-    # measured: clean 46.2 dB, phone 33.3 dB (the lead's gain is extrapolated across the step
+    # measured: clean 48.2 dB, phone 32.6 dB (the lead's gain is extrapolated across the step
     # from the drift estimate at the first lit frames: 3-7 % off here, times a 30 % room
-    # light); without the corrections: see the report
-    assert snr["phone"] > 32.8 and snr["clean"] > 45.7, snr
+    # light); without the corrections: see the report. With single cells hidden to choose the
+    # residual's weight (0.5 kept unless another did 2 % better): clean 46.2, phone 33.3 dB.
+    assert snr["phone"] > 32.2 and snr["clean"] > 47.7, snr
 
 
 @pytest.mark.parametrize(("series", "step"), [

@@ -6,6 +6,7 @@ import zarr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ltmstore.core.binning import revisited, segments
 from ltmstore.core.dims import Lattice, Plane
 from ltmstore.stages import resample
 from ltmstore.stages.resample import bin_frames, bin_positions, path_length
@@ -28,6 +29,29 @@ def test_binning_is_the_mean_of_each_cell_on_hand_made_samples():
     np.testing.assert_allclose(out, expected)
     assert binning.k == 3 and binning.m == 8 and binning.ratio == 3 / 8
     assert binning.count[0, 0] == 2 and binning.count.sum() == 4
+
+
+def test_each_cell_belongs_to_the_second_that_took_most_of_its_frames():
+    lattice = Lattice.from_plane(PLANE, (4, 2))  # unit cells
+    r = np.array([0.5, 0.5, 0.5, 1.5, 1.5, 3.5, 0.5])
+    s = np.array([0.5, 0.5, 0.5, 0.5, 0.5, 1.5, 0.5])
+    times = 10.0 + np.array([0.1, 1.2, 1.3, 1.9, 2.05, 3.5, 0.2])  # the video starts at 10 s
+    valid = np.array([True, True, True, True, True, True, False])
+    segment = segments(bin_positions(lattice, (r, s), valid), times, 1.0)
+    expected = np.full(8, -1)
+    expected[[0, 2, 7]] = [1, 1, 3]  # (0, 0): two frames in second 1, one in 0; (1, 0): a tie
+    np.testing.assert_array_equal(segment, expected)
+    empty = bin_positions(lattice, (r, s), np.zeros(7, bool))
+    assert (segments(empty, times, 1.0) == -1).all()
+
+
+def test_revisited_counts_the_cells_beside_another_second_of_the_path():
+    apart = np.array([[0, 0, 0, 1, 1, 1], [-1] * 6, [2, 2, 2, 3, 3, 3]])
+    assert revisited(apart) == 4 / 12  # only where a sweep turns to its next second
+    beside = apart.copy()
+    beside[1] = 4  # a pass between the two sweeps, in another second
+    assert revisited(beside) == 1.0
+    assert revisited(np.full((3, 3), -1)) == 0.0
 
 
 def test_upper_plane_edge_belongs_to_last_cell():
