@@ -41,8 +41,8 @@ def test_flow_reconstructs_above_measured_snr(flow_run, small_acquisition):
     rec = report["reconstruct"]
     assert rec["lattice"]["shape"] == [16, 16]
     assert rec["sampling_ratio"] == pytest.approx(0.371, rel=0.05)  # measured: K 95 of M 256
-    # 52 of the 95 cells beside another second of the path (measured): the residual's weight
-    # is chosen with whole seconds hidden
+    # 52 of the 95 cells beside another second of the path (measured): below MIN_REVISITED
+    # (0.7), so the residual's weight is chosen with single cells hidden
     assert rec["revisited"] == pytest.approx(52 / 95, abs=0.011)
 
 
