@@ -64,18 +64,21 @@ class Choice:
     errors: dict
 
 
+def _declared(method: str, name: str) -> dict:
+    """The mapping ``name`` that the method's module declares (empty where it declares none)."""
+    return dict(getattr(importlib.import_module(get_method(method).__module__), name, {}))
+
+
 def auto_grid(method: str) -> dict:
     """The method's ``AUTO_GRID`` (empty: nothing to choose)."""
-    module = importlib.import_module(get_method(method).__module__)
-    return dict(getattr(module, "AUTO_GRID", {}))
+    return _declared(method, "AUTO_GRID")
 
 
 def auto_default(method: str, name: str, *, revisited: bool = False) -> object:
     """The value of parameter ``name`` that the choice keeps unless another predicts held-out
     cells better by :data:`MARGIN`: the solver's default, or on a path revisited beside most of
     its cells (``revisited``) the method's ``REVISITED_DEFAULT`` where it declares one."""
-    module = importlib.import_module(get_method(method).__module__)
-    fallback = getattr(module, "REVISITED_DEFAULT", {}) if revisited else {}
+    fallback = _declared(method, "REVISITED_DEFAULT") if revisited else {}
     if name in fallback:
         return fallback[name]
     return inspect.signature(get_method(method)).parameters[name].default
