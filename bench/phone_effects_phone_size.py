@@ -272,13 +272,21 @@ def measure(folder: Path, truth: Path, lattice: tuple[int, int],
 
 
 def _ltm_attrs(store: Path) -> dict:
-    """The reconstruct's method summary, where the store records it."""
+    """The reconstruct's method summary, where the store records it, and what it chose: the
+    LED's exponent, the tiles' methods and parameters, how often the path came back."""
     try:
         import xarray as xr
+        import zarr
+
+        from ltmstore.core.store import stages
 
         ds = xr.open_zarr(store, consolidated=False)
         keep = {k: ds.attrs[k] for k in ("method", "methods") if k in ds.attrs}
-        return {"store_attrs": json.loads(json.dumps(keep, default=str))}
+        record = stages(zarr.open_group(store, mode="r")).get("reconstruct", {})
+        chosen = {k: record[k] for k in ("led_beam", "chosen_per_tile", "revisited")
+                  if k in record}
+        return {"store_attrs": json.loads(json.dumps(keep, default=str)),
+                "reconstruct": json.loads(json.dumps(chosen, default=str))}
     except Exception as exc:  # noqa: BLE001 - a summary only
         return {"store_attrs_error": str(exc)}
 

@@ -66,6 +66,17 @@ def bin_positions(lattice: Lattice, positions: tuple[np.ndarray, ...],
     return Binning(lattice=lattice, cell=cell, count=count)
 
 
+def cell_means(binning: Binning, *values: np.ndarray) -> np.ndarray:
+    """The mean of each per-frame quantity in ``values`` over the frames binned into each cell,
+    ``(M, len(values))`` in C order of the cells (NaN where none)."""
+    used = binning.cell >= 0
+    cells, m = binning.cell[used], binning.m
+    count = np.bincount(cells, minlength=m).astype(float)
+    with np.errstate(invalid="ignore"):
+        return np.column_stack([np.bincount(cells, weights=np.asarray(v, float)[used],
+                                            minlength=m) / count for v in values])
+
+
 def segments(binning: Binning, times: np.ndarray, seconds: float) -> np.ndarray:
     """The stretch of the capture, ``seconds`` long, in which each cell took most of its
     frames: ``(M,)`` int, -1 where it took none.

@@ -33,6 +33,8 @@ COLOR_CHANNELS = ("R", "G", "B")
 FRAMES = "frames"  # (t, y, x) linear luminance
 FRAME_CHROMA = "frame_chroma"  # (channel, t, y, x) linear Cb, Cr (for a colour LTM)
 POSES = ("pose_r", "pose_s", "pose_z", "pose_valid")  # (t,) light per frame; + pose_p, pose_q in 6D
+# (t,) phone A's LED axis per frame (unit vector, plane coordinates), where poses.csv gives it
+POSE_AXIS = ("pose_axis_r", "pose_axis_s", "pose_axis_z")
 SAMPLES = "samples"  # (y, x, r, s[, p, q]) binned means, NaN where unobserved
 # The measurements (frames, frame_chroma, samples and the chroma samples) are stored in float16:
 # its rounding (at most 2^-11 of a value, -71 dB RMS) lies below one step of an 8-bit video and

@@ -44,7 +44,8 @@ REFINEMENT = "reconstruct_surface"  # a far-light store's second reconstruct sta
 # Which variables each stage writes (to hide the output of stages that did not complete).
 STAGE_VARIABLES = {
     "ingest": ("frames", "frame_chroma", "pose_r", "pose_s", "pose_z", "pose_p", "pose_q",
-               "pose_valid", "chroma", "chroma_spread"),
+               "pose_valid", "pose_axis_r", "pose_axis_s", "pose_axis_z", "chroma",
+               "chroma_spread"),
     "resample": ("samples", "count", "samples_cb", "samples_cr"),
     "reconstruct": ("ltm", "expected_error", "unsupported", "ltm_cb", "ltm_cr", "method_map",
                     "ltm_tiles_done", "ltm_cb_tiles_done", "ltm_cr_tiles_done",

@@ -46,6 +46,11 @@ class Geometry:
         Where each cell's samples were taken: the mean light position of the frames binned into
         it (NaN where none), in C order of the cells. A cell's sample is the mean of frames
         anywhere inside it; a model that fits light positions fits it there, not at the centre.
+    led_axis : ndarray of shape (M, 3), optional
+        The LED's mean axis over the frames binned into each cell (unit vectors in plane
+        coordinates, NaN where none), where the poses give it: a hand's wobble tilts the beam
+        of each cell's samples; a model that fits them fits each cell's beam about its own axis
+        and relights with the LED held level (straight down). None: level everywhere.
     segment : ndarray of shape (M,), optional
         The stretch of a handheld capture (a second of its video) in which each cell took most
         of its frames, -1 where none (:func:`ltmstore.core.binning.segments`): the held-out
@@ -57,6 +62,7 @@ class Geometry:
     pixels: np.ndarray | None = None
     led_exponent: float = 0.0
     sampled: np.ndarray | None = None
+    led_axis: np.ndarray | None = None
     segment: np.ndarray | None = None
 
     def take(self, rows: np.ndarray) -> Geometry:

@@ -149,8 +149,9 @@ def near_lights(geometry: Geometry, *, led_exponent: float | None = None,
     """The light of every lattice cell as seen from every pixel of ``geometry.pixels``
     (read-only arrays: the last :data:`CACHED_LIGHTS` are kept, since a tile's held-out fold
     and its fit see the same pixels); the LED's ``cos^led_exponent`` beam (None: the
-    geometry's ``led_exponent``); ``sampled``: at each cell's samples' mean light position
-    (:meth:`Geometry.sample_positions`), not its centre."""
+    geometry's ``led_exponent``); ``sampled``: as each cell's samples were taken, at their
+    mean light position (:meth:`Geometry.sample_positions`) with the beam about their mean
+    LED axis (:attr:`Geometry.led_axis`), not at the centre with the LED held level."""
     if led_exponent is None:
         led_exponent = geometry.led_exponent
     if geometry.pixels is None:
@@ -158,12 +159,13 @@ def near_lights(geometry: Geometry, *, led_exponent: float | None = None,
                        "declare the object's extent in acquisition.json ('object')")
     cells = geometry.sample_positions() if sampled else geometry.positions()
     rs = np.ascontiguousarray(cells[:, :2], dtype=np.float32)
+    axis = _led_axes(geometry if sampled else None, len(rs))
     pixels = np.ascontiguousarray(geometry.pixels, dtype=np.float32)
     if COMPILED:  # the same values without NumPy's temporaries
         from ltmstore.solve import physical_near
 
-        key = (hashlib.sha1(rs.tobytes() + pixels.tobytes()).hexdigest(), rs.shape,
-               pixels.shape, float(geometry.height), float(led_exponent))
+        key = (hashlib.sha1(rs.tobytes() + axis.tobytes() + pixels.tobytes()).hexdigest(),
+               rs.shape, pixels.shape, float(geometry.height), float(led_exponent))
         found = _LIGHTS.get(key)
         if found is not None:
             return found
@@ -171,8 +173,8 @@ def near_lights(geometry: Geometry, *, led_exponent: float | None = None,
         toward = np.empty((3, *shape), dtype=np.float32)
         half = np.empty((3, *shape), dtype=np.float32)
         g = np.empty(shape, dtype=np.float32)
-        physical_near.lights(rs, pixels, np.float32(geometry.height), np.float32(led_exponent),
-                             toward, half, g)
+        physical_near.lights(rs, axis, pixels, np.float32(geometry.height),
+                             np.float32(led_exponent), toward, half, g)
         for array in (toward, half, g):
             array.flags.writeable = False
         found = Lights(toward, half, g)
@@ -186,7 +188,20 @@ def near_lights(geometry: Geometry, *, led_exponent: float | None = None,
     half = toward.copy()
     half[2] += 1
     half /= np.sqrt((half**2).sum(axis=0))
-    return Lights(toward, half, toward[2] ** np.float32(led_exponent) / dist2)
+    emitted = -np.einsum("jnc,cj->nc", toward, axis)  # cos of the angle off the LED's axis
+    return Lights(toward, half, np.maximum(emitted, 0) ** np.float32(led_exponent) / dist2)
+
+
+def _led_axes(geometry: Geometry | None, cells: int) -> np.ndarray:
+    """The LED's axis at each cell ``(M, 3)`` float32: ``geometry``'s :attr:`~Geometry.led_axis`
+    where known, straight down elsewhere (and everywhere for None)."""
+    down = np.zeros((cells, 3), dtype=np.float32)
+    down[:, 2] = -1
+    if geometry is None or geometry.led_axis is None:
+        return down
+    axis = np.asarray(geometry.led_axis, dtype=np.float32)
+    return np.ascontiguousarray(np.where(np.isfinite(axis).all(axis=1, keepdims=True), axis,
+                                         down))
 
 
 def unit_normal(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -516,8 +531,8 @@ def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float 
     observed_all = np.isfinite(flat)
     cells = np.flatnonzero(observed_all.any(axis=0))
     lights_all = near_lights(geometry, led_exponent=led_exponent)
-    seen = lights_all if geometry.sampled is None else near_lights(
-        geometry, led_exponent=led_exponent, sampled=True)
+    seen = lights_all if geometry.sampled is None and geometry.led_axis is None else (
+        near_lights(geometry, led_exponent=led_exponent, sampled=True))
     lights = seen.take(cells)  # fitted where the samples were taken
     # np.take keeps rows contiguous (flat[:, cells] is laid out column-major, and every
     # Levenberg-Marquardt call copied it for the kernel)
@@ -710,7 +725,8 @@ CACHED_ROWS = 512  # ... batches of at most this many pixels (a tile is solved o
 
 def _fit_key(samples: np.ndarray, geometry: Geometry, *params) -> tuple:
     digest = hashlib.sha1(np.ascontiguousarray(samples).tobytes())
-    for array in (geometry.pixels, geometry.positions(), geometry.sampled):
+    for array in (geometry.pixels, geometry.positions(), geometry.sampled,
+                  geometry.led_axis):
         digest.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
     return (digest.hexdigest(), samples.shape, str(samples.dtype), geometry.height,
             geometry.led_exponent, params)

@@ -199,14 +199,15 @@ def model(theta, toward, half, g, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def lights(rs, pixels, height, exponent, toward, half, g):  # pragma: no cover - compiled
+def lights(rs, axis, pixels, height, exponent, toward, half, g):  # pragma: no cover - compiled
     """Fill ``toward``, ``half (3, n, M)`` and ``g (n, M)`` (float32) with the light of the
     cells at ``rs (M, 2)`` as seen from the pixels at ``pixels (n, 2)`` (float32, plane units)
-    on a plane at ``height``, with the LED's ``cos^exponent`` emission: the values of
+    on a plane at ``height``, with the LED's ``cos^exponent`` emission about each cell's axis
+    ``axis (M, 3)`` (unit; straight down ``(0, 0, -1)`` for a level LED): the values of
     :func:`ltmstore.solve.physical.near_lights` in its operations and order (no
     ``fastmath``), without its ``(3, n, M)`` temporaries (0.05 against 0.12 s for 1024 pixels
     on 2500 cells)."""
-    f1 = np.float32(1.0)
+    f0, f1 = np.float32(0.0), np.float32(1.0)
     z = np.float32(height)
     for i in range(pixels.shape[0]):
         for c in range(rs.shape[0]):
@@ -218,4 +219,5 @@ def lights(rs, pixels, height, exponent, toward, half, g):  # pragma: no cover -
             norm = np.sqrt(tx * tx + ty * ty + hz * hz)
             toward[0, i, c], toward[1, i, c], toward[2, i, c] = tx, ty, tz
             half[0, i, c], half[1, i, c], half[2, i, c] = tx / norm, ty / norm, hz / norm
-            g[i, c] = tz ** exponent / dist2
+            emitted = -(tx * axis[c, 0] + ty * axis[c, 1] + tz * axis[c, 2])
+            g[i, c] = max(emitted, f0) ** exponent / dist2

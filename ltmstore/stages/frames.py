@@ -28,6 +28,7 @@ from ltmstore.core.dims import (
     FRAMES,
     OBSERVATION_DTYPE,
     PIXEL_DIMS,
+    POSE_AXIS,
     POSES,
     VIEW_DIMS,
     Plane,
@@ -389,10 +390,13 @@ def _accumulator(work: float) -> Callable[..., tuple[float, int]]:
 
 
 def write_lights(group: zarr.Group, lights: Lights) -> None:
-    """Write ``pose_r``, ``pose_s``, ``pose_z`` (and ``pose_p``, ``pose_q``) and ``pose_valid``."""
+    """Write ``pose_r``, ``pose_s``, ``pose_z`` (and ``pose_p``, ``pose_q``), ``pose_valid`` and,
+    where the poses give the LED's axis, ``pose_axis_r``, ``pose_axis_s``, ``pose_axis_z``."""
     name_r, name_s, name_z, name_valid = POSES
     columns = {name_r: lights.r, name_s: lights.s, name_z: lights.z,
-               **{f"pose_{k}": v for k, v in lights.view.items()}, name_valid: lights.valid}
+               **{f"pose_{k}": v for k, v in lights.view.items()}, name_valid: lights.valid,
+               **({} if lights.axis is None
+                  else dict(zip(POSE_AXIS, lights.axis.T, strict=True)))}
     for name, values in columns.items():
         arr = create_variable(group, name, (T,), values.shape, chunks=(max(len(values), 1),),
                               dtype=values.dtype, fill_value=False if values.dtype == bool

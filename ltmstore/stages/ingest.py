@@ -7,6 +7,7 @@ Layout written (ARCHITECTURE.md section 3.2), for ``n`` frames of ``H x W`` pixe
   ``(chunk_frames, min(H, 256), min(W, 256))`` (16 x 16 pixels for registered 6D frames);
 * ``pose_r, pose_s, pose_z (t,)`` float64 light position at each frame (NaN where the pose record
   does not cover the frame), plus ``pose_p, pose_q`` for 6D acquisitions; ``pose_valid (t,)`` bool;
+  ``pose_axis_r, pose_axis_s, pose_axis_z (t,)``, phone A's LED axis, where the poses give it;
 * ``chroma (y, x, channel)`` float32: ``sum_t Cb / sum_t Y`` and ``sum_t Cr / sum_t Y`` over the
   valid frames (0 where ``sum_t Y == 0``): colour as a ratio to luminance, illumination invariant;
 * group attribute ``acquisition`` (provenance, input hashes) and stage ``ingest``.
@@ -24,7 +25,7 @@ light's image, subtracted from every frame (its frames are rejected as ``led_off
 the camera's gain or white balance is estimated from the frames and divided out, or refused.
 Where ``poses.csv`` gives phone A's LED axis (``axis_r, axis_s, axis_z``) the LED's ``cos^k``
 beam about it is part of that estimate, so that a hand's wobble is not taken for drift, and its
-exponent is recorded (``beam``).
+exponent is recorded (``beam``); the axis is stored for the reconstruction's surface model.
 
 6D acquisitions (``view_plane`` in ``acquisition.json``, ``p, q`` columns in ``poses.csv``)
 whose ``view_plane`` declares camera B (``distance``, ``intrinsics``, ``grid``): every frame is

@@ -17,8 +17,9 @@ and more a side, over every second pixel of every second row:
   tell). The frames are not divided by the beam here: at the object's centre (all ingest knows
   of the pixels' places) that brought the frames of a 64 px canvas with a 3 degree wobble
   nearer those of a level LED (RMS 4.4 -> 2.3 %) but the LTM's SNR_Y down by 1.4 dB (26.9 ->
-  25.5; a level LED: 27.0): the cost is the beam itself, which the pixel's place under the
-  light (the reconstruction's placement) can undo.
+  25.5; a level LED: 27.0). The axis is stored instead (``pose_axis_*``), and the
+  reconstruction's surface model, which knows each pixel's place under the light, fits each
+  lattice cell's beam about the mean axis of its frames.
 
 Each frame is then, in linear light: undistorted (:mod:`ltmstore.capture.undistort`), divided by
 its gains, and the ambient image (in the same corrected units: measured at the lead's gain)

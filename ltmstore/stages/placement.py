@@ -22,6 +22,7 @@ import warnings
 import numpy as np
 import zarr
 
+from ltmstore.core.binning import cell_means
 from ltmstore.core.dims import SAMPLES
 from ltmstore.core.errors import LtmError, LtmWarning
 from ltmstore.solve.placement import (
@@ -74,12 +75,7 @@ def read_pixels(group: zarr.Group, plan: TilePlan) -> tuple[np.ndarray, np.ndarr
 
 def light_positions(binning: Binning, r: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Mean ``(r, s)`` of the frames binned into each cell, ``(M, 2)`` (NaN where none)."""
-    used = binning.cell >= 0
-    cells, m = binning.cell[used], binning.m
-    count = np.bincount(cells, minlength=m).astype(float)
-    with np.errstate(invalid="ignore"):
-        return np.column_stack([np.bincount(cells, weights=c[used], minlength=m) / count
-                                for c in (r, s)])
+    return cell_means(binning, r, s)
 
 
 def estimate(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray,

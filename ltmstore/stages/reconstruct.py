@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 from ltmstore.core import checksum, factored, memory
 from ltmstore.core import store as st
-from ltmstore.core.binning import revisited, segments
+from ltmstore.core.binning import cell_means, revisited, segments
 from ltmstore.core.dims import (
     CHROMA_CHANNELS,
     CHROMA_LTM,
@@ -37,6 +37,7 @@ from ltmstore.core.dims import (
     FRAME_CHROMA,
     LTM,
     OBSERVATION_DTYPE,
+    POSE_AXIS,
     SAMPLES,
     UNSUPPORTED,
     Lattice,
@@ -303,17 +304,24 @@ def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
     """``geometry`` with the exponent of the LED's ``cos^k`` beam of a near-light capture
     placed by ``extent`` (None: no surface model, no beam), and its record: ingest's
     estimate (poses with the LED's axis, tilted: ingest records an axis held level as the
-    profile's, not estimated), else the held-out choice of
+    profile's, not estimated), refined by held-out error where each cell's axis is known
+    (:func:`ltmstore.stages.surface.refined_exponents`); else the held-out choice of
     :func:`ltmstore.stages.surface.choose_led_exponent` on a sample of the image's pixels,
     from what the axis's wobble measured (:func:`ltmstore.stages.surface.wobble_exponent`)."""
     if extent is None:
         return geometry, None
     beam = st.stages(group).get("ingest", {}).get("beam") or {}
-    if beam.get("source") == "estimated":
-        k, record = float(beam["exponent"]), {"exponent": float(beam["exponent"]),
-                                              "source": "ingest"}
+    estimated = beam.get("source") == "estimated"
+    if estimated and geometry.led_axis is None:
+        k = float(beam["exponent"])
+        return replace(geometry, led_exponent=k), {"exponent": k, "source": "ingest"}
+    batch, placed = image_sample(group[SAMPLES], plan, geometry, extent)
+    if estimated:
+        k, record = sf.choose_led_exponent(
+            batch, placed, default=float(beam["exponent"]), margin=0.0,
+            grid=sf.refined_exponents(float(beam["exponent"]), float(beam["stderr"])))
+        record["source"] = "ingest, refined by held-out error"
     else:
-        batch, placed = image_sample(group[SAMPLES], plan, geometry, extent)
         k, record = sf.choose_led_exponent(batch, placed, default=sf.wobble_exponent(beam))
     return replace(geometry, led_exponent=k), record
 
@@ -816,7 +824,8 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
                 "path_density": path_length(r, s, valid=valid) / plane.area}
     segment, sampling["revisited"] = _segments(group, binning)
     solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height,
-                                        sampled=_sampled(binning, r, s), segment=segment),
+                                        sampled=_sampled(binning, r, s),
+                                        led_axis=_led_axes(group, binning), segment=segment),
                       plan=plan,
                       sampling=sampling, key=key, method=method, params=params, auto=auto,
                       color=color, progress=progress, light_major=light_major, form=form)
@@ -867,6 +876,17 @@ def _sampled(binning: Binning, r: np.ndarray, s: np.ndarray) -> np.ndarray | Non
     from ltmstore.stages.placement import light_positions
 
     return light_positions(binning, r, s)
+
+
+def _led_axes(group: zarr.Group, binning: Binning) -> np.ndarray | None:
+    """The LED's mean axis over each cell's frames, ``(M, 3)`` unit vectors (NaN where none),
+    where the store has the poses' axis (``pose_axis_*``) and the lattice is the plane's; else
+    None (the LED held level)."""
+    if len(binning.lattice.shape) != 2 or any(name not in group for name in POSE_AXIS):
+        return None
+    mean = cell_means(binning, *(group[name][:] for name in POSE_AXIS))
+    with np.errstate(invalid="ignore"):
+        return mean / np.linalg.norm(mean, axis=1, keepdims=True)
 
 
 def _segments(group: zarr.Group, binning: Binning) -> tuple[np.ndarray | None, float | None]:

@@ -3,6 +3,8 @@ paths they replace."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -91,19 +93,32 @@ def test_the_compiled_model_values_are_numpys(monkeypatch, exponent):
 
 
 @pytest.mark.parametrize("exponent", [0.0, 1.5])
-def test_the_compiled_lights_are_numpys(monkeypatch, exponent):
+@pytest.mark.parametrize("tilted", [False, True])
+def test_the_compiled_lights_are_numpys(monkeypatch, exponent, tilted):
     """The compiled near lights equal NumPy's: the same operations in the same order, bit for
-    bit but the fall-off's power (measured 9e-8 of the largest value at exponent 1.5)."""
+    bit but the fall-off's power (measured 9e-8 of the largest value at exponent 1.5), with
+    the LED held level or tilted per cell (``led_axis``, a cell unknown: level there)."""
     rng = np.random.default_rng(6)
     lattice = Lattice(bounds=((-0.2, 0.2), (-0.3, 0.1)), shape=(12, 20), dims=("r", "s"))
-    geometry = Geometry(lattice, 0.3, rng.uniform(-0.05, 0.05, (40, 2)))
-    compiled = physical.near_lights(geometry, led_exponent=exponent)
+    axis = None
+    if tilted:
+        axis = np.column_stack([rng.normal(0, 0.05, (240, 2)), -np.ones(240)])
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        axis[7] = np.nan
+    geometry = Geometry(lattice, 0.3, rng.uniform(-0.05, 0.05, (40, 2)), led_axis=axis)
+    compiled = physical.near_lights(geometry, led_exponent=exponent, sampled=True)
     monkeypatch.setattr(physical, "COMPILED", False)
-    reference = physical.near_lights(geometry, led_exponent=exponent)
+    reference = physical.near_lights(geometry, led_exponent=exponent, sampled=True)
     assert np.array_equal(compiled.toward, reference.toward)
     assert np.array_equal(compiled.half, reference.half)
     assert compiled.g.dtype == reference.g.dtype == np.float32
     assert np.abs(compiled.g - reference.g).max() <= 2e-7 * reference.g.max()
+    level = physical.near_lights(replace(geometry, led_axis=None), led_exponent=exponent)
+    assert np.array_equal(level.g[:, 7], reference.g[:, 7])  # the unknown axis: level
+    if tilted and exponent:  # tilts of 3.7 degrees on average: up to 20 % (measured 0.202)
+        assert np.abs(reference.g / level.g - 1).max() > 0.15
+    else:
+        np.testing.assert_array_equal(reference.g, level.g)
 
 
 def test_a_warm_start_costs_fewer_iterations_and_lands_near_the_cold_fit(monkeypatch):

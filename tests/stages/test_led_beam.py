@@ -100,34 +100,78 @@ def test_the_beams_wobble_is_not_read_as_drift(capture):
     assert np.all(np.abs(none.beam_exponent) < 0.5), none.beam_exponent
 
 
-def test_ingest_records_the_beam_and_leaves_the_frames(capture, tmp_path):
-    """Axis columns in a folder whose frames have no beam: the exponent is measured near 0, the
-    frames are stored as without the columns, and the record says what was found."""
+@pytest.fixture(scope="module")
+def axis_store(capture, tmp_path_factory):
+    """The capture with the axis columns in its poses, ingested: the folder, its record, the
+    store; and the store without them."""
     import shutil
-
-    import xarray as xr
 
     from ltmstore.stages.ingest import ingest
     from ltmstore.synthetic.raw import phone_orientation_at
 
     folder, *_ = capture
-    with_axis = tmp_path / "axis"
+    work = tmp_path_factory.mktemp("axis")
+    with_axis = work / "axis"
     shutil.copytree(folder, with_axis)
     poses = np.loadtxt(folder / "poses.csv", delimiter=",", skiprows=1)
     axis = phone_orientation_at(poses[:, 0], 1)[:, :, 2]
     np.savetxt(with_axis / "poses.csv", np.column_stack([poses, axis]), delimiter=",",
                header=HEADER, comments="", fmt="%.9g")
-    record = ingest(with_axis, tmp_path / "a.zarr", progress=False)
+    record = ingest(with_axis, work / "a.zarr", progress=False)
+    plain = ingest(folder, work / "p.zarr", progress=False)
+    return record, work / "a.zarr", plain, work / "p.zarr"
+
+
+def test_ingest_records_the_beam_and_leaves_the_frames(axis_store):
+    """Axis columns in a folder whose frames have no beam: the exponent is measured near 0, the
+    frames are stored as without the columns, the axis beside the light's position, and the
+    record says what was found."""
+    import xarray as xr
+
+    from ltmstore.core.dims import POSE_AXIS
+    from ltmstore.synthetic.raw import phone_orientation_at
+
+    record, store, plain, plain_store = axis_store
     beam = record["beam"]
     # measured: exponent 0.20 (standard error 0.16): no beam in these frames
     assert beam["source"] == "estimated" and abs(beam["exponent"]) < 0.5, beam
     assert 1.5 < beam["tilt_deg_rms"] < 4.0, beam  # measured 2.2 degrees
-    plain = ingest(folder, tmp_path / "p.zarr", progress=False)
     assert "beam" not in plain and not record["drift"]["corrected"], record["drift"]
-    got, want = (xr.open_zarr(tmp_path / f"{n}.zarr", consolidated=False)["frames"].values
-                 for n in ("a", "p"))
-    np.testing.assert_array_equal(got, want)
+    got, want = (xr.open_zarr(path, consolidated=False) for path in (store, plain_store))
+    np.testing.assert_array_equal(got["frames"].values, want["frames"].values)
+    assert not any(name in want for name in POSE_AXIS)
+    valid = got["pose_valid"].values
+    axis = np.column_stack([got[name].values for name in POSE_AXIS])[valid]
+    # each frame's axis, interpolated between the poses' rows (60 Hz) at its time
+    true = phone_orientation_at(got["t"].values[valid], 1)[:, :, 2]
+    assert np.abs(axis - true).max() < 2e-3, np.abs(axis - true).max()
     json.dumps(record)  # the record is JSON
+
+
+def test_reconstruct_refines_the_exponent_about_each_cells_axis(axis_store, client, tmp_path):
+    """With the axis stored, ingest's exponent is refined by held-out error among those within
+    two of its standard errors, and the surface model takes each cell's mean axis."""
+    import shutil
+
+    import zarr
+
+    from ltmstore.core.store import stages
+    from ltmstore.stages.reconstruct import reconstruct
+    from ltmstore.stages.surface import refined_exponents
+
+    record, store, *_ = axis_store
+    shutil.copytree(store, tmp_path / "a.zarr")
+    reconstruct(tmp_path / "a.zarr", client=client, lattice=(16, 16), progress=False)
+    beam = stages(zarr.open_group(tmp_path / "a.zarr", mode="r"))["reconstruct"]["led_beam"]
+    estimate = record["beam"]
+    assert beam["source"] == "ingest, refined by held-out error", beam
+    assert beam["default"] == estimate["exponent"], beam
+    grid = refined_exponents(estimate["exponent"], estimate["stderr"])
+    assert len(beam["errors"]) >= len(grid) and grid.min() <= beam["exponent"] <= grid.max()
+    assert beam["errors"][f"{beam['exponent']:g}"] == min(beam["errors"].values()), beam
+    # no beam in these frames: measured 0.22 (ingest's 0.20 +- 0.16; held-out errors within
+    # 0.3 % of each other from 0 to 0.51)
+    assert beam["exponent"] < 0.5, beam
 
 
 def test_the_raw_simulators_true_poses_carry_the_axis(tmp_path):

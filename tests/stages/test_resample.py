@@ -6,7 +6,7 @@ import zarr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ltmstore.core.binning import revisited, segments
+from ltmstore.core.binning import cell_means, revisited, segments
 from ltmstore.core.dims import Lattice, Plane
 from ltmstore.stages import resample
 from ltmstore.stages.resample import bin_frames, bin_positions, path_length
@@ -43,6 +43,17 @@ def test_each_cell_belongs_to_the_second_that_took_most_of_its_frames():
     np.testing.assert_array_equal(segment, expected)
     empty = bin_positions(lattice, (r, s), np.zeros(7, bool))
     assert (segments(empty, times, 1.0) == -1).all()
+
+
+def test_cell_means_average_each_cells_frames():
+    lattice = Lattice.from_plane(PLANE, (4, 2))  # unit cells
+    r = np.array([0.5, 0.7, 3.5, 0.5])
+    s = np.array([0.5, 0.5, 1.5, 0.5])
+    binning = bin_positions(lattice, (r, s), np.array([True, True, True, False]))
+    means = cell_means(binning, r, np.array([1.0, 2.0, 5.0, 100.0]))  # the last one not used
+    assert means.shape == (8, 2)
+    np.testing.assert_allclose(means[[0, 7]], [[0.6, 1.5], [3.5, 5.0]])
+    assert np.isnan(np.delete(means, [0, 7], axis=0)).all()
 
 
 def test_revisited_counts_the_cells_beside_another_second_of_the_path():
