@@ -39,8 +39,8 @@ ALLOW_OPTION = "--allow-dropped-frames"
 T = TypeVar("T")
 LOSSLESS_CODECS = frozenset({"ffv1", "rawvideo", "huffyuv", "ffvhuff", "utvideo", "magicyuv",
                              "png", "qtrle"})
-# H.264 cost a simulated 720 px canvas's LTM (20 s, 43.1 dB uncompressed) 8.6 dB of SNR_Y at a
-# phone's usual 0.27 bits per pixel, 3.4 at 1, 2.3 at 2 and 1.4 at 4 (bench/codec_bitrate.py;
+# H.264 cost a simulated 720 px canvas's LTM (20 s, 44.4 dB uncompressed) 9.5 dB of SNR_Y at a
+# phone's usual 0.27 bits per pixel, 3.9 at 1, 2.6 at 2 and 2.2 at 4 (bench/codec_bitrate.py;
 # docs/two-phones.md, "Record at a high bitrate"): below 2, ingest warns.
 FAIR_BITS_PER_PIXEL = 2.0
 
@@ -52,7 +52,7 @@ def codec_warning(encoding: dict) -> str | None:
     if codec in LOSSLESS_CODECS or bpp is None or bpp >= FAIR_BITS_PER_PIXEL:
         return None
     return (f"camera B's video is {codec} at {bpp:.2f} bits per pixel: H.264 below "
-            f"{FAIR_BITS_PER_PIXEL:g} cost a simulated capture's LTM 2.3 dB or more (8.6 dB at a "
+            f"{FAIR_BITS_PER_PIXEL:g} cost a simulated capture's LTM 2.6 dB or more (9.5 dB at a "
             f"phone's usual 0.27; docs/two-phones.md, \"Record at a high bitrate\"): where the "
             f"phone offers a higher bitrate or ProRes, record with it")
 

@@ -825,7 +825,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
     segment, sampling["revisited"] = _segments(group, binning)
     solve_args = dict(geometry=Geometry(lattice=lat, height=plane.height,
                                         sampled=_sampled(binning, r, s),
-                                        led_axis=_led_axes(group, binning), segment=segment),
+                                        led_axis=_cell_axes(group, binning), segment=segment),
                       plan=plan,
                       sampling=sampling, key=key, method=method, params=params, auto=auto,
                       color=color, progress=progress, light_major=light_major, form=form)
@@ -878,7 +878,7 @@ def _sampled(binning: Binning, r: np.ndarray, s: np.ndarray) -> np.ndarray | Non
     return light_positions(binning, r, s)
 
 
-def _led_axes(group: zarr.Group, binning: Binning) -> np.ndarray | None:
+def _cell_axes(group: zarr.Group, binning: Binning) -> np.ndarray | None:
     """The LED's mean axis over each cell's frames, ``(M, 3)`` unit vectors (NaN where none),
     where the store has the poses' axis (``pose_axis_*``) and the lattice is the plane's; else
     None (the LED held level)."""
