@@ -40,8 +40,9 @@ class Geometry:
         extent and the capture cannot place it (:mod:`ltmstore.stages.placement`). A method
         that slices rows of a batch slices these with :meth:`take`.
     led_exponent : float
-        ``k`` of the near light's ``cos^k`` emission about its axis (straight down), one value
-        per capture (:func:`ltmstore.stages.surface.choose_led_exponent`); 0: no beam.
+        ``k`` of the near light's ``cos^k`` emission about its axis (straight down, or each
+        cell's :attr:`led_axis` where a model fits the samples), one value per capture
+        (:func:`ltmstore.stages.reconstruct.led_beam`); 0: no beam.
     sampled : ndarray of shape (M, ndim), optional
         Where each cell's samples were taken: the mean light position of the frames binned into
         it (NaN where none), in C order of the cells. A cell's sample is the mean of frames
