@@ -73,11 +73,6 @@ def read_pixels(group: zarr.Group, plan: TilePlan) -> tuple[np.ndarray, np.ndarr
     return block.reshape(len(rows) * len(cols), -1), rr.ravel(), cc.ravel()
 
 
-def light_positions(binning: Binning, r: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Mean ``(r, s)`` of the frames binned into each cell, ``(M, 2)`` (NaN where none)."""
-    return cell_means(binning, r, s)
-
-
 def estimate(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray,
              s: np.ndarray, height: float, *, seed: int = 0) -> Placement | None:
     """The frame's map estimated from the store's samples (see :mod:`ltmstore.solve.placement`).
@@ -86,7 +81,7 @@ def estimate(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray,
     finite = np.isfinite(values)
     cells = finite.mean(0) >= 0.95  # the cells (nearly) every pixel saw
     pixels = finite[:, cells].all(1)
-    lights = light_positions(binning, r, s)[cells]
+    lights = cell_means(binning, r, s)[cells]  # where each cell's samples were taken
     return estimate_placement(values[np.ix_(pixels, cells)], rows[pixels], cols[pixels],
                               plan.image, lights, height, seed=seed)
 
@@ -177,8 +172,8 @@ def place_object(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndar
     """
     declared = group.attrs["acquisition"].get("object")
     found = estimate(group, plan, binning, r, s, height)
-    lo, hi = np.nanmin(light_positions(binning, r, s), 0), np.nanmax(
-        light_positions(binning, r, s), 0)
+    lights = cell_means(binning, r, s)
+    lo, hi = np.nanmin(lights, 0), np.nanmax(lights, 0)
     lights_range = f"r {lo[0]:.3g}..{hi[0]:.3g}, s {lo[1]:.3g}..{hi[1]:.3g}"
     why = unsupported(found, lights_range)
     record: dict = {"estimate": None if found is None else _estimate_record(found)}

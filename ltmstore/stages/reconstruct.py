@@ -871,11 +871,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
 def _sampled(binning: Binning, r: np.ndarray, s: np.ndarray) -> np.ndarray | None:
     """Each cell's samples' mean light position on a lattice of the plane (the surface
     model fits them there), None on a 6-D lattice."""
-    if len(binning.lattice.shape) != 2:
-        return None
-    from ltmstore.stages.placement import light_positions
-
-    return light_positions(binning, r, s)
+    return cell_means(binning, r, s) if len(binning.lattice.shape) == 2 else None
 
 
 def _cell_axes(group: zarr.Group, binning: Binning) -> np.ndarray | None:
