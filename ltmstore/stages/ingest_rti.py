@@ -244,7 +244,12 @@ def _first_image(folder: Path, name: str) -> tuple[np.ndarray, tuple[str | None,
 def _white(rgb: np.ndarray) -> bool:
     """Whether an integer photograph is white in every pixel (saturated); a float one never
     is (light beyond 1 is kept)."""
-    return rgb.dtype.kind == "u" and bool(rgb.min() == np.iinfo(rgb.dtype).max)
+    if rgb.dtype.kind != "u":
+        return False
+    top = np.iinfo(rgb.dtype).max
+    # the first row first: a whole decoded photograph (often a view of negative stride) is
+    # slow to reduce, and almost every photograph has a pixel below white in its first row
+    return bool(rgb[0].min() == top) and bool(rgb.min() == top)
 
 
 def _frames_per_chunk(pixels: int, requested: int) -> int:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +51,23 @@ class TilePlan:
     @property
     def n_tiles(self) -> int:
         return int(np.prod(self.grid))
+
+    def region(self, tiles: Sequence[tuple[int, int]]) -> tuple[slice, slice]:
+        """The pixel rows and columns of neighbouring ``tiles`` of one tile row."""
+        (i, first), last = tiles[0], tiles[-1][1]
+        (th, tw), (h, w) = self.tile, self.image
+        return slice(i * th, min((i + 1) * th, h)), slice(first * tw, min((last + 1) * tw, w))
+
+    def row_runs(self, max_bytes: int, min_runs: int = 1) -> list[list[tuple[int, int]]]:
+        """The tiles in runs along each tile row, each run's whole LTFs (float32) at most
+        ``max_bytes`` (at least one tile), and at least ``min_runs`` runs where there are as
+        many tiles (work for every thread): one write of a run costs Zarr's overhead of a
+        call once, not once per tile."""
+        per = max(1, min(max_bytes // (FLOAT_BYTES * math.prod(self.block)),
+                         self.n_tiles // min_runs))
+        rows, cols = self.grid
+        return [[(i, j) for j in range(start, min(start + per, cols))]
+                for i in range(rows) for start in range(0, cols, per)]
 
 
 def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 32,

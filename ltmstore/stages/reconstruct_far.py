@@ -75,6 +75,9 @@ from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
 FAR_LATTICE = (8, 8)
 FAR_TILE = 64
 CHOICE_PIXELS = 1024  # pixels of a tile whose leave-one-out error chooses its model
+# the LTM of tiles written in one call (a run along a tile row), and the least number of runs
+# (work for both threads of a small capture's slow surface tiles)
+WRITE_BYTES, WRITE_RUNS = 16 * 2**20, 16
 # A tile leaves the image's model only when its own lowers the tile's MSE by more than this
 # fraction of the image's mean MSE (see choose_tiles).
 LEAVE_GLOBAL = 1.0
@@ -223,11 +226,14 @@ class FarFit:
         ``chosen`` (an index of :attr:`models`; ``len(models)``: the surface blend, of
         ``surface = (theta, blend, gain, height)``, ``height`` the one casting its shadows)."""
         lat, loo32 = self.lat, self.loo.astype(np.float32)  # per pixel: float32 as the values
-        ltm, error, unsupported = (group[n] for n in (LTM, EXPECTED_ERROR, UNSUPPORTED))
+        ltm = group[LTM]
+        # the per-pixel maps are written once, whole, after the tiles: a write per tile of
+        # each cost as much as the tile's LTM (Zarr's overhead of a call, about 1.4 ms)
+        error = np.empty(self.plan.image, np.float32)
         theta, blend, gain, height = surface if surface is not None else (None,) * 4
         at_cells = None if blend is None else sf.BlendAt.of(blend, self.train, self.cells)
 
-        def write(index: tuple[int, int]) -> None:
+        def fit(index: tuple[int, int]) -> np.ndarray:  # the tile's LTM; its error noted
             rows, cols, values = self.pixels(index, gain)
             shape = (rows.stop - rows.start, cols.stop - cols.start)
             best = int(chosen[index])
@@ -241,15 +247,21 @@ class FarFit:
                         d, shadows.region_horizons(height, rows, cols, d), blend.shadows)
                         for d in (self.train, self.cells))
                 fitted, residual = at_cells.image_and_residual(tile_theta, values, visible)
-            fitted = np.clip(fitted, 0, None)
-            ltm[rows, cols] = srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
             rms = np.sqrt(np.mean(residual**2, axis=0))
             spread = np.ptp(values, axis=0)
             error[rows, cols] = (rms / np.where(spread > 0, spread, np.inf)).reshape(shape)
-            unsupported[rows, cols] = False
+            fitted = np.clip(fitted, 0, None)
+            return srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
 
-        list(tqdm(pool.map(write, list(np.ndindex(self.plan.grid))), total=self.plan.n_tiles,
-                  desc=desc, disable=not progress))
+        def write(run: list[tuple[int, int]]) -> int:  # neighbouring tiles, one Zarr write
+            ltm[self.plan.region(run)] = np.concatenate([fit(i) for i in run], axis=1)
+            return len(run)
+
+        with tqdm(total=self.plan.n_tiles, desc=desc, disable=not progress) as bar:
+            for done in pool.map(write, self.plan.row_runs(WRITE_BYTES, WRITE_RUNS)):
+                bar.update(done)
+        group[EXPECTED_ERROR][...] = error
+        group[UNSUPPORTED][...] = np.zeros(self.plan.image, bool)
 
     def classic(self, group: zarr.Group, *, progress: bool, key: dict, staged: bool) -> dict:
         """Stage 1 (:func:`reconstruct_far`); ``staged``: the refinement follows in this run
