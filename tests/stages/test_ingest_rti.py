@@ -215,13 +215,16 @@ def test_rti_commands_load_only_what_they_need(lp, tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.splitlines()[-1]
     assert not set(json.loads(out)) & set(heavy), out
-    # ingest alone sums a short capture's frames in NumPy: Numba (0.6-0.8 s) is not loaded
+    # ingest alone sums a short capture's frames in NumPy: Numba (0.6-0.8 s) is not loaded;
+    # nor is it, or SciPy (the height map's FFT), by the first stage, the relightable store
     code = ("import json, sys; from ltmstore.cli import main; "
             f"assert main(['ingest-rti', {str(lp)!r}, {str(tmp_path / 'i.zarr')!r}]) == 0; "
+            f"assert main(['reconstruct', {str(tmp_path / 'i.zarr')!r}, '--stage', "
+            "'classic']) == 0; "
             "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules})))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.splitlines()[-1]
-    assert not set(json.loads(out)) & {*heavy, "numba", "llvmlite"}, out
+    assert not set(json.loads(out)) & {*heavy, "numba", "llvmlite", "scipy"}, out
 
 
 def test_loo_mse_by_gram_matrix_is_the_direct_mean():
