@@ -5,14 +5,19 @@ the held-out lights of real captures and scored against the held-out photographs
 
 Usage (stores made by ``ltm ingest-rti DIRS.lp S.zarr --holdout-lights 6`` + ``ltm reconstruct``)::
 
-    OMP_NUM_THREADS=1 nice -n 15 python bench/export_fidelity.py coin=/tmp/coin.zarr ...
+    OMP_NUM_THREADS=1 nice -n 15 python bench/export_fidelity.py coin=/tmp/coin.zarr ... \
+        [--only=web-bilinear,ptm] [--relight-cli=PATH]
 
-Writes (merges ``--only=a,b`` runs into) ``bench/results/export_fidelity.json``.
+With ``--relight-cli`` (Relight's ``relight-cli``, built as in ``docs/development.md``) each web
+export is also drawn by Relight's own renderer at the held-out lights (``relight-cli -L x:y:z -D
+image.png web``) and scored the same way. Writes (merges ``--only`` runs into)
+``bench/results/export_fidelity.json``.
 """
 
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -55,7 +60,18 @@ def size(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*")) if path.is_dir() else path.stat().st_size
 
 
-def measure(store: str, only: list[str]) -> dict:
+def drawn_by_relight(relight_cli: str, web: Path, dirs: np.ndarray) -> np.ndarray:
+    """The web export ``web`` drawn by ``relight-cli -L x:y:z -D`` at ``dirs``: 8-bit RGB."""
+    images = []
+    for d in dirs:
+        out = web.parent / "drawn.png"
+        subprocess.run([relight_cli, "-L", ":".join(f"{v:.6f}" for v in d), "-D", str(out),
+                        str(web)], check=True, capture_output=True)
+        images.append(np.asarray(Image.open(out).convert("RGB"), float))
+    return np.stack(images)
+
+
+def measure(store: str, only: list[str], relight_cli: str | None = None) -> dict:
     dirs, photos = held_out(store)
     ds = ltmstore.open_store(store)
     with warnings.catch_warnings():
@@ -80,6 +96,9 @@ def measure(store: str, only: list[str]) -> dict:
                 "db_vs_ltm_relight": round(psnr(images, store_png.astype(float)), 2),
                 "bytes": size(Path(tmp) / name / file), "seconds": round(seconds, 1),
                 **{k: report[k] for k in ("terms", "directions") if k in report}}
+            if relight_cli and reader is read_web:
+                drawn = drawn_by_relight(relight_cli, Path(tmp) / name / file, dirs)
+                out["formats"][name]["relight_cli_db_vs_photos"] = round(psnr(drawn, photos), 2)
             print(name, out["formats"][name], flush=True)
     return out
 
@@ -87,11 +106,13 @@ def measure(store: str, only: list[str]) -> dict:
 def main(argv: list[str]) -> None:
     only = [a.split("=", 1)[1].split(",") for a in argv if a.startswith("--only=")]
     names = only[0] if only else list(CASES)
+    relight_cli = next((a.split("=", 1)[1] for a in argv if a.startswith("--relight-cli=")),
+                       None)
     target = HERE / "results" / "export_fidelity.json"
     results = json.loads(target.read_text()) if target.is_file() else {}  # --only: merged
     for arg in (a for a in argv if not a.startswith("--")):
         label, store = arg.split("=", 1)
-        measured = measure(store, names)
+        measured = measure(store, names, relight_cli)
         formats = {**results.get(label, {}).get("formats", {}), **measured.pop("formats")}
         results[label] = {**measured, "formats": formats}
         print(label, results[label]["ltm_relight_db"], flush=True)
