@@ -210,9 +210,17 @@ def frames_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray | None = N
     """Linear RGB of the valid frames' ``rows``, ``(t, rows, x, 3)`` float32; ``luma``: the
     valid frames' luminance ``(t, y, x)`` (every row) where it is already read."""
     y = np.asarray(group["frames"][:, rows])[valid] if luma is None else luma[:, rows]
-    y = y.astype(np.float32)
-    cb, cr = (np.asarray(group["frame_chroma"][i, :, rows])[valid].astype(np.float32)
-              for i in (0, 1))
+    return _rgb(y, *_chroma(group, valid, rows))
+
+
+def _chroma(group: zarr.Group, valid: np.ndarray, rows: slice) -> tuple[np.ndarray, ...]:
+    """Cb and Cr of the valid frames' ``rows`` as stored, ``(t, rows, x)`` each."""
+    return tuple(np.asarray(group["frame_chroma"][i, :, rows])[valid] for i in (0, 1))
+
+
+def _rgb(y: np.ndarray, cb: np.ndarray, cr: np.ndarray) -> np.ndarray:
+    """Linear RGB ``(..., 3)`` float32 of stored Y, Cb, Cr (negative values clipped)."""
+    y, cb, cr = (v.astype(np.float32) for v in (y, cb, cr))
     # written channel by channel into float32: a stacked image took twice the memory
     rgb = np.empty((*y.shape, 3), dtype=np.float32)
     for c, channel in enumerate(rgb_from_ycbcr(y, cb, cr)):
@@ -231,13 +239,14 @@ def row_bands(shape: tuple[int, int, int], band_bytes: int | None = None) -> lis
 def sample_rgb(group: zarr.Group, valid: np.ndarray, luma: np.ndarray, pixels: np.ndarray
                ) -> np.ndarray:
     """Linear RGB ``(t, p, 3)`` of the valid frames at the flat indices ``pixels`` (sorted),
-    read band by band (:func:`row_bands`)."""
-    width = luma.shape[2]
+    read band by band (:func:`row_bands`) and converted at those pixels only."""
+    t, _, width = luma.shape
     parts = []
     for rows in row_bands(luma.shape):
         inside = pixels[(pixels >= rows.start * width) & (pixels < rows.stop * width)]
-        band = frames_rgb(group, valid, luma, rows).reshape(len(luma), -1, 3)
-        parts.append(band[:, inside - rows.start * width])
+        at = inside - rows.start * width
+        parts.append(_rgb(luma[:, rows].reshape(t, -1)[:, at],
+                          *(c.reshape(t, -1)[:, at] for c in _chroma(group, valid, rows))))
     return np.concatenate(parts, axis=1)
 
 
