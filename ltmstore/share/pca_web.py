@@ -35,6 +35,7 @@ import os
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PIL import Image
@@ -42,6 +43,9 @@ from PIL import Image
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import linear_to_srgb
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 DEFAULT_RESOLUTION = 16  # grid nodes per side: 256 light directions
 DEFAULT_PLANES = 27  # PCA planes (9 JPEG images)
@@ -116,15 +120,19 @@ class _Renderer:
     """A store relit at the grid's directions, as display values ``(pixels, R^2 * 3)``."""
 
     def __init__(self, store: str | os.PathLike, directions: np.ndarray) -> None:
-        from ltmstore.stages.relight import relight  # share sits above stages
-
-        self.ds = open_store(store)
+        self.ds, self.directions = open_store(store), directions
         self.transfer = self.ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-        with warnings.catch_warnings():  # nodes far from the lights are the model's own
-            warnings.simplefilter("ignore")  # extrapolation: that is what the grid asks
-            self.relit = relight(self.ds, directions=directions)
+        self.relit = self._relit(self.ds)
         self.shape = (self.ds.sizes["y"], self.ds.sizes["x"])
         self.step = max(1, BAND_BYTES // (4 * 3 * self.shape[1] * len(directions)))
+
+    def _relit(self, ds: xr.Dataset) -> xr.DataArray:
+        """``ds`` relit at the grid's directions, lazily."""
+        from ltmstore.stages.relight import relight  # share sits above stages
+
+        with warnings.catch_warnings():  # nodes far from the lights are the model's own
+            warnings.simplefilter("ignore")  # extrapolation: that is what the grid asks
+            return relight(ds, directions=self.directions)
 
     def rows(self, rows: slice | np.ndarray) -> np.ndarray:
         """Display values ``(len(rows) * x, R^2 * 3)`` of a set of rows, pixel-major."""
@@ -141,7 +149,18 @@ class _Renderer:
             yield rows, self.rows(rows)
 
     def sample(self) -> np.ndarray:
-        """Display values of a regular subsample of at most about ``SAMPLE_PIXELS`` pixels."""
+        """Display values of a regular subsample of about ``SAMPLE_PIXELS`` pixels: above
+        four times that, the store strided to every k-th pixel both ways and relit there only
+        (rows picked one by one had the relighting compute the whole band of rows each lies
+        in: at 1 MP as long as the pass over every band); else every k-th row."""
+        step = int(np.sqrt(self.shape[0] * self.shape[1] / SAMPLE_PIXELS))
+        if step >= 2:
+            relit = self._relit(self.ds.isel(y=slice(step // 2, None, step),
+                                             x=slice(step // 2, None, step)))
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                v = _display(relit.values, self.transfer)  # (light, y, x, color)
+            return np.ascontiguousarray(v.transpose(1, 2, 0, 3)).reshape(-1, v.shape[0] * 3)
         stride = max(1, int(np.ceil(self.shape[0] * self.shape[1] / SAMPLE_PIXELS)))
         picked = np.arange(0, self.shape[0], stride)
         return np.concatenate([self.rows(picked[i:i + self.step])

@@ -593,14 +593,13 @@ def _correction(blend: surface.Blend, theta: np.ndarray, train: np.ndarray, dirs
                 visible: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """:meth:`~ltmstore.stages.surface.Blend.correction` of the pixels ``theta (p, 3, 6)``,
     ``weights`` the smoother's at ``dirs`` (float32), its sum over the captured lights taken
-    light by light: the same in every band of rows (BLAS's order, as
+    light by light by ``einsum``: the same in every band of rows (BLAS's order, as
     :func:`~ltmstore.stages.surface.correction` takes it, changes with the number of pixels and
-    threads: in the last bit of 1.5 % of the values of a 1000 x 300 image)."""
+    threads: in the last bit of 1.5 % of the values of a 1000 x 300 image), and the same values
+    as a loop over the lights, ten times faster at the 256 directions of a web export."""
     at, to = (None, None) if visible is None else visible
     at_train = surface.model_encoded(theta, train, color=color, lobe=blend.lobe, visible=at)
-    mixed = np.zeros((len(dirs), *at_train.shape[1:]), np.float32)
-    for k, plane in enumerate(at_train):
-        mixed += weights[:, k].reshape(-1, *(1,) * plane.ndim) * plane
+    mixed = np.einsum("lk,k...->l...", weights, np.ascontiguousarray(at_train))
     query = surface.model_encoded(theta, dirs, color=color, lobe=blend.lobe, visible=to)
     return blend.weight * (query - mixed)
 
