@@ -134,8 +134,8 @@ class _Renderer:
             warnings.simplefilter("ignore")  # extrapolation: that is what the grid asks
             return relight(ds, directions=self.directions)
 
-    def rows(self, rows: slice | np.ndarray) -> np.ndarray:
-        """Display values ``(len(rows) * x, R^2 * 3)`` of a set of rows, pixel-major."""
+    def rows(self, rows: slice) -> np.ndarray:
+        """Display values ``(rows * x, R^2 * 3)`` of a band of rows, pixel-major."""
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             v = self.relit.isel(y=rows).values  # (light, y, x, color)
@@ -149,22 +149,16 @@ class _Renderer:
             yield rows, self.rows(rows)
 
     def sample(self) -> np.ndarray:
-        """Display values of a regular subsample of about ``SAMPLE_PIXELS`` pixels: above
-        four times that, the store strided to every k-th pixel both ways and relit there only
-        (rows picked one by one had the relighting compute the whole band of rows each lies
-        in: at 1 MP as long as the pass over every band); else every k-th row."""
-        step = int(np.sqrt(self.shape[0] * self.shape[1] / SAMPLE_PIXELS))
-        if step >= 2:
-            relit = self._relit(self.ds.isel(y=slice(step // 2, None, step),
-                                             x=slice(step // 2, None, step)))
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                v = _display(relit.values, self.transfer)  # (light, y, x, color)
-            return np.ascontiguousarray(v.transpose(1, 2, 0, 3)).reshape(-1, v.shape[0] * 3)
-        stride = max(1, int(np.ceil(self.shape[0] * self.shape[1] / SAMPLE_PIXELS)))
-        picked = np.arange(0, self.shape[0], stride)
-        return np.concatenate([self.rows(picked[i:i + self.step])
-                               for i in range(0, len(picked), self.step)])
+        """Display values of a regular subsample of at most ``SAMPLE_PIXELS`` pixels: the
+        store strided to every k-th pixel both ways and relit there only (rows picked one by
+        one had the relighting compute the whole band of rows each lies in)."""
+        step = max(1, int(np.ceil(np.sqrt(self.shape[0] * self.shape[1] / SAMPLE_PIXELS))))
+        strided = slice(step // 2, None, step)
+        relit = self._relit(self.ds.isel(y=strided, x=strided))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            v = _display(relit.values, self.transfer)  # (light, y, x, color)
+        return np.ascontiguousarray(v.transpose(1, 2, 0, 3)).reshape(-1, v.shape[0] * 3)
 
 
 def principal(sample: np.ndarray, planes: int) -> tuple[np.ndarray, np.ndarray]:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import dask.array as da
 import numpy as np
@@ -87,8 +88,8 @@ LIGHT = "light"
 
 
 FAR_FROM_DATA_DEG = 25.0  # a light further than this from every observed one gets a warning
-# A far-light store's surface model is rendered in bands of rows whose model at the captured
-# lights (float32 RGB) takes at most this (surface.row_bands): the whole image at once took
+# A far-light store is relit in bands of rows whose values at the captured lights and at the
+# asked ones (float32 RGB) take at most this (surface.row_bands): the whole image at once took
 # 2.7 GB at 1 MP, 47 lights; bands of 2**26 bytes 0.87 GB, of 2**24 0.54 GB (the frames'
 # chunks in flight the most of the rest), of 2**22 no less (relight(...).values' peak RSS;
 # the command's: bench/relight_memory.py).
@@ -486,7 +487,8 @@ def _finish(ds: xr.Dataset, apply, views, color: bool) -> xr.DataArray:
 
 
 def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
-    """Directions on a far-light store: each tile's chosen model, evaluated from the frames."""
+    """Directions on a far-light store: each tile's chosen model, evaluated from the frames
+    block by block (:func:`_far_block`)."""
     if METHOD_MAP not in ds:
         raise LtmError("the far-light store has no method_map; run `ltm reconstruct` again "
                        "with this version")
@@ -495,83 +497,89 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
     _warn_far(dirs, train)
     chosen = ds[METHOD_MAP]
     ty, tx = chosen.attrs["tile"]
-    codes = chosen.values
-    per_pixel = np.repeat(np.repeat(codes, ty, 0), tx, 1)[: ds.sizes["y"], : ds.sizes["x"]]
-    per_pixel = xr.DataArray(per_pixel, dims=("y", "x"))
-    names = {int(c): chosen.attrs["methods"][int(c)] for c in np.unique(codes)}
-    models = {c: surface.Blend.from_name(name) if name.startswith(surface.PREFIX)
-              else Model(name) for c, name in names.items()}
-    weights = {c: xr.DataArray(m.weights(train, dirs).astype(np.float32), dims=(LIGHT, T))
-               for c, m in models.items()}
-    physical = [c for c, m in models.items() if isinstance(m, surface.Blend)]
-    for c in physical:  # the lobe is written twice: the method's name and the surface's own
-        if models[c].lobe != surface.surface_lobe(ds):
-            raise LtmError(f"the far-light store's method {names[c]!r} names the "
-                           f"{models[c].lobe} lobe, its roughness the "
-                           f"{surface.surface_lobe(ds)} lobe; run `ltm reconstruct` again")
+    # each pixel's tile by its position in the image: ds may be a region or strided
+    codes = chosen.values[(ds["y"].values // ty)[:, None], (ds["x"].values // tx)[None, :]]
+    models = {int(c): _far_model(ds, chosen.attrs["methods"][int(c)]) for c in np.unique(codes)}
+    encoded = _encoded_frames(ds, np.flatnonzero(valid), color)
+    image = _far_image(ds, encoded, codes, models, train, dirs)
+    dims = (LIGHT, "y", "x", COLOR) if color else (LIGHT, "y", "x")
+    coords = {LIGHT: np.arange(len(dirs)), "light_lx": (LIGHT, dirs[:, 0]),
+              "light_ly": (LIGHT, dirs[:, 1]), "light_lz": (LIGHT, dirs[:, 2]),
+              "y": ds["y"], "x": ds["x"]}
+    if color:
+        coords[COLOR] = list(COLOR_CHANNELS)
+    return xr.DataArray(image, dims=dims, coords=coords, attrs=ds[FRAMES].attrs)
 
-    def apply(encoded: xr.DataArray) -> xr.DataArray:
-        """The models on sRGB-encoded frames, decoded to linear light."""
-        terms = [(xr.dot(encoded, w, dim=T) + (_surface_correction(ds, train, dirs, models[c],
-                                                                   COLOR in encoded.dims)
-                                              if c in physical else 0)).where(per_pixel == c, 0)
-                 for c, w in weights.items()]
-        image = sum(terms[1:], terms[0]).transpose(LIGHT, "y", ...)
-        return _transfer(image.clip(min=0), srgb_to_linear).assign_coords(
-            {LIGHT: np.arange(len(dirs)), "light_lx": (LIGHT, dirs[:, 0]),
-             "light_ly": (LIGHT, dirs[:, 1]), "light_lz": (LIGHT, dirs[:, 2])})
 
-    used = {T: np.flatnonzero(valid)}
-    luminance = ds[FRAMES].isel(used).drop_vars(T)
-    exposure = (ds[surface.EXPOSURE].isel(used).drop_vars(T).astype(np.float32)
+def _far_model(ds: xr.Dataset, name: str) -> Model | surface.Blend:
+    """The model a far-light store's method ``name`` names (its surface blend checked
+    against the store's surface)."""
+    if not name.startswith(surface.PREFIX):
+        return Model(name)
+    blend = surface.Blend.from_name(name)
+    if blend.lobe != surface.surface_lobe(ds):  # the lobe is written twice
+        raise LtmError(f"the far-light store's method {name!r} names the {blend.lobe} lobe, "
+                       f"its roughness the {surface.surface_lobe(ds)} lobe; run `ltm "
+                       "reconstruct` again")
+    if blend.shadows and surface.SHADOW_HEIGHT not in ds:
+        raise LtmError(f"the far-light store's method {name!r} casts shadows but it has no "
+                       f"{surface.SHADOW_HEIGHT}; run `ltm reconstruct` again")
+    return blend
+
+
+def _encoded_frames(ds: xr.Dataset, used: np.ndarray, color: bool) -> da.Array:
+    """The photographs at ``used``, sRGB-encoded at the capture's mean exposure, lazily:
+    ``(t, y, x[, color])`` float32, what the models are fitted to."""
+    luminance = ds[FRAMES].isel({T: used}).drop_vars(T)
+    exposure = (ds[surface.EXPOSURE].isel({T: used}).drop_vars(T).astype(np.float32)
                 if surface.EXPOSURE in ds else 1)
-    if not color:
-        return apply(_transfer(luminance / exposure, linear_to_srgb))
-    cb, cr = (ds[FRAME_CHROMA].sel(channel=c, drop=True).isel(used).drop_vars(T)
-              .astype(np.float32) for c in ("cb", "cr"))
-    rgb = _stack_rgb(luminance, cb, cr).clip(min=0) / exposure
-    return apply(_transfer(rgb, linear_to_srgb)).transpose(LIGHT, "y", "x", COLOR)
+    if color:
+        cb, cr = (ds[FRAME_CHROMA].sel(channel=c, drop=True).isel({T: used}).drop_vars(T)
+                  .astype(np.float32) for c in ("cb", "cr"))
+        linear = _stack_rgb(luminance, cb, cr).clip(min=0) / exposure
+    else:
+        linear = luminance / exposure
+    return da.asarray(_transfer(linear, linear_to_srgb).data)
 
 
-def _surface_correction(ds: xr.Dataset, train: np.ndarray, dirs: np.ndarray,
-                        blend: surface.Blend, color: bool) -> xr.DataArray:
-    """What the surface model adds to its blend's linear image at ``dirs``
-    (:meth:`ltmstore.stages.surface.Blend.correction`), sRGB-encoded,
-    ``(light, y, x[, color])``: lazy, one task per block of the surface variables' column
-    chunks by a band of rows (:func:`~ltmstore.stages.surface.row_bands` of
-    :data:`BAND_BYTES`), each reading its part of the surface variables only (a region of the
-    image, an IIIF tile, computes its own columns, not whole rows)."""
-    height, width = ds.sizes["y"], ds.sizes["x"]
-    stored = ds[surface.SURFACE[0]]  # its column chunks: each is read once, by its blocks
-    source = stored if stored.chunks else ds[FRAMES]  # held in memory: the frames' columns
-    cols = tuple(source.chunksizes["x"]) if source.chunks else (width,)
-    rows = tuple(b.stop - b.start for b in surface.row_bands((len(train), height, max(cols)),
-                                                               BAND_BYTES))
-    maps = [da.asarray(ds[name].data) for name in surface.SURFACE]
+def _far_image(ds: xr.Dataset, encoded: da.Array, codes: np.ndarray, models: dict,
+               train: np.ndarray, dirs: np.ndarray) -> da.Array:
+    """Linear images ``(light, y, x[, color])`` of the far-light models: one task per block of
+    the surface variables' (else the frames') column chunks by a band of rows
+    (:func:`~ltmstore.stages.surface.row_bands` of :data:`BAND_BYTES`), each reading its part
+    of the frames and of the surface variables only (a region of the image, an IIIF tile,
+    computes its own columns, not whole rows)."""
+    height, width = codes.shape
+    blends = {c: m for c, m in models.items() if isinstance(m, surface.Blend)}
+    stored = ds[surface.SURFACE[0]] if blends else ds[FRAMES]
+    cols = tuple(stored.chunksizes["x"]) if stored.chunks else (width,)
+    rows = tuple(b.stop - b.start for b in surface.row_bands(
+        (len(train) + len(dirs), height, max(cols)), BAND_BYTES))
+    encoded = encoded.rechunk((-1, rows, cols, *(-1,) * (encoded.ndim - 3)))
+    maps = [da.asarray(ds[name].data) for name in surface.SURFACE] if blends else []
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
+    operators = {c: _FarOperator.of(m, train, dirs) for c, m in models.items()}
+
+    def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, frames: np.ndarray,
+              *values: np.ndarray) -> np.ndarray:
+        visible = {c: _visible(ds, blends[c], ys, xs, train, dirs) for c in np.unique(where)
+                   if c in blends and blends[c].shadows}
+        out = np.empty((len(dirs), *frames.shape[1:]), np.float32)
+        for c in np.unique(where):
+            inside = where == c
+            out[:, inside] = operators[c](frames[:, inside], [v[inside] for v in values],
+                                          visible.get(c), inside.ravel())
+        return srgb_to_linear(np.clip(out, 0, None, out=out))
+
+    index = "yx" + ("c" if encoded.ndim == 4 else "")
     at = (da.from_array(np.arange(height), chunks=(rows,)),  # where each block lies
           da.from_array(np.arange(width), chunks=(cols,)))
-    if blend.shadows and surface.SHADOW_HEIGHT not in ds:
-        raise LtmError(f"the far-light store's method {blend.name!r} casts shadows but it has "
-                       f"no {surface.SHADOW_HEIGHT}; run `ltm reconstruct` again")
-
-    weights = blend.smoother.weights(train, dirs).astype(np.float32)
-
-    def band(ys: np.ndarray, xs: np.ndarray, *values: np.ndarray) -> np.ndarray:
-        theta = surface.surface_theta(*values)
-        visible = _visible(ds, blend, ys, xs, train, dirs) if blend.shadows else None
-        corr = _correction(blend, theta.reshape(-1, 3, 6), train, dirs, weights, color,
-                           visible)
-        return corr.reshape(len(dirs), *theta.shape[:2], *corr.shape[2:])
-
-    extra = {"c": len(COLOR_CHANNELS)} if color else {}
-    indices = [(at[0], "y"), (at[1], "x")]
-    indices += [(m, "yx" + ("k" if m.ndim == 3 else "")) for m in maps]
-    image = da.blockwise(band, "lyx" + "".join(extra), *(x for pair in indices for x in pair),
-                         new_axes={"l": len(dirs), **extra}, concatenate=True,
-                         dtype=np.float32, meta=np.empty((0,) * (3 + bool(color)), np.float32))
-    dims = (LIGHT, "y", "x", COLOR) if color else (LIGHT, "y", "x")
-    return xr.DataArray(image, dims=dims)
+    args = [at[0], "y", at[1], "x", da.from_array(codes, chunks=(rows, cols)), "yx",
+            encoded, "t" + index]
+    args += [x for m in maps for x in (m, "yx" + ("k" if m.ndim == 3 else ""))]
+    return da.blockwise(block, "l" + index, *args, new_axes={"l": len(dirs)},
+                        concatenate=True, dtype=np.float32,
+                        meta=np.empty((0,) * (len(index) + 1), np.float32))
 
 
 def _visible(ds: xr.Dataset, blend: surface.Blend, ys: np.ndarray, xs: np.ndarray,
@@ -588,20 +596,53 @@ def _visible(ds: xr.Dataset, blend: surface.Blend, ys: np.ndarray, xs: np.ndarra
                                  blend.shadows) for d in (train, dirs))
 
 
-def _correction(blend: surface.Blend, theta: np.ndarray, train: np.ndarray, dirs: np.ndarray,
-                weights: np.ndarray, color: bool,
-                visible: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """:meth:`~ltmstore.stages.surface.Blend.correction` of the pixels ``theta (p, 3, 6)``,
-    ``weights`` the smoother's at ``dirs`` (float32), its sum over the captured lights taken
-    light by light by ``einsum``: the same in every band of rows (BLAS's order, as
-    :func:`~ltmstore.stages.surface.correction` takes it, changes with the number of pixels and
-    threads: in the last bit of 1.5 % of the values of a 1000 x 300 image), and the same values
-    as a loop over the lights, ten times faster at the 256 directions of a web export."""
-    at, to = (None, None) if visible is None else visible
-    at_train = surface.model_encoded(theta, train, color=color, lobe=blend.lobe, visible=at)
-    mixed = np.einsum("lk,k...->l...", weights, np.ascontiguousarray(at_train))
-    query = surface.model_encoded(theta, dirs, color=color, lobe=blend.lobe, visible=to)
-    return blend.weight * (query - mixed)
+@dataclass(frozen=True)
+class _FarOperator:
+    """A far-light model's image at ``dirs`` from the encoded photographs at ``train``:
+    ``linear @ frames``, plus for a surface blend ``weight (srgb(M(dirs)) - smoother @
+    srgb(M(train)))`` (:meth:`ltmstore.stages.surface.Blend.correction`), its two sums over
+    the photographs taken as one."""
+
+    model: Model | surface.Blend
+    train: np.ndarray
+    dirs: np.ndarray
+    weights: np.ndarray  # (d, n) float64, or (d, 2n): the frames' then the model's
+
+    @classmethod
+    def of(cls, model: Model | surface.Blend, train: np.ndarray, dirs: np.ndarray
+           ) -> _FarOperator:
+        weights = model.weights(train, dirs)
+        if isinstance(model, surface.Blend):
+            weights = np.hstack([weights, -model.weight * model.smoother.weights(train, dirs)])
+        return cls(model, train, dirs, weights.astype(np.float64))
+
+    def __call__(self, frames: np.ndarray, values: list[np.ndarray],
+                 visible: tuple[np.ndarray, np.ndarray] | None, pixels: np.ndarray
+                 ) -> np.ndarray:
+        """Encoded images ``(d, p[, 3])`` of the pixels whose encoded ``frames (n, p[, 3])``
+        and surface ``values`` (:data:`~ltmstore.stages.surface.SURFACE`) are given;
+        ``visible``: the block's shadows at ``train`` and ``dirs``, ``pixels`` selecting
+        these pixels of it."""
+        if not isinstance(self.model, surface.Blend):
+            return _weighted_sum(self.weights, frames)
+        blend = self.model
+        at, to = (None, None) if visible is None else (v[pixels] for v in visible)
+        theta = surface.surface_theta(*values)
+        color = frames.ndim == 3
+        at_train = surface.model_encoded(theta, self.train, color=color, lobe=blend.lobe,
+                                         visible=at)
+        query = surface.model_encoded(theta, self.dirs, color=color, lobe=blend.lobe,
+                                      visible=to)
+        return (_weighted_sum(self.weights, np.concatenate([frames, at_train]))
+                + np.float32(blend.weight) * query)
+
+
+def _weighted_sum(weights: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``weights (d, n) @ values (n, ...)`` in float64 (one BLAS call), as float32: the same
+    value for a pixel in any block (float32 BLAS sums in an order that changes with the
+    number of pixels, in the last bit of 1.5 % of the values at 1000 x 300 pixels)."""
+    flat = values.reshape(len(values), -1).astype(np.float64)
+    return (weights @ flat).astype(np.float32).reshape(len(weights), *values.shape[1:])
 
 
 def _transfer(values: xr.DataArray, func) -> xr.DataArray:

@@ -44,39 +44,30 @@ def test_bands_of_one_row_give_the_image_of_one_band(far_store, monkeypatch, col
 
 
 def _band_peak(store, band_bytes: int, monkeypatch) -> int:
-    """Peak bytes Python allocated (tracemalloc) while the surface model of ``store`` is
-    rendered at one light in bands of ``band_bytes``, on one thread."""
+    """Peak bytes Python allocated (tracemalloc) while ``store`` is relit at one light in bands
+    of ``band_bytes``, on one thread."""
     import dask
 
     ds = open_store(store)
     monkeypatch.setattr(rl, "BAND_BYTES", band_bytes)
-    correction = rl._surface_correction(ds, rl._observed_directions(ds), DIRECTIONS[:1] /
-                                        np.linalg.norm(DIRECTIONS[0]),
-                                        _blend(ds), color=True)
+    image = rl.relight(ds, directions=DIRECTIONS[:1], color=True)
     with dask.config.set(scheduler="synchronous"):
-        correction.data.compute()  # what a first call imports, compiles or caches: not traced
+        image.data.compute()  # what a first call imports, compiles or caches: not traced
         gc.collect()  # nor the garbage earlier tests left for the collector
         tracemalloc.start()
         try:
-            correction.data.compute()
+            image.data.compute()
             return tracemalloc.get_traced_memory()[1]
         finally:
             tracemalloc.stop()
 
 
-def _blend(ds) -> sf.Blend:
-    chosen = ds[rl.METHOD_MAP]
-    names = [chosen.attrs["methods"][int(c)] for c in np.unique(chosen.values)]
-    return sf.Blend.from_name(next(n for n in names if n.startswith(sf.PREFIX)))
-
-
 def test_memory_follows_the_band_not_the_image(far_store, monkeypatch):
-    """Rendering the surface model at the 47 captured lights takes about 2.7 kB a pixel at
-    once (float64 renders): in bands of a quarter of the image's rows the peak is about a
-    quarter of the whole image's, plus the graph's own (which grows with the number of bands:
-    bands of one row peak higher than bands of four)."""
+    """Relighting reads the 47 photographs and renders the surface model at their lights,
+    about 7.5 kB a pixel at once: in bands of about a quarter of the image's rows the peak is
+    about a quarter of the whole image's, plus the graph's own (which grows with the number
+    of bands: bands of one row peak higher than bands of four)."""
     whole = _band_peak(far_store, 2**40, monkeypatch)
-    quarter = _band_peak(far_store, 10 * 47 * 36 * 3 * 4, monkeypatch)  # bands of 10 rows
-    # measured: whole image (40 x 36 pixels) 4.05 MB, bands of 10 rows 1.19 MB (0.29 of it;
-    # 20 rows 2.11 MB)
+    quarter = _band_peak(far_store, 10 * 48 * 36 * 3 * 4, monkeypatch)  # bands of 10 rows
+    # measured: whole image (40 x 36 pixels) 10.8 MB, bands of 10 rows 3.4 MB (0.32 of it)
     assert quarter < 0.4 * whole, (quarter, whole)
