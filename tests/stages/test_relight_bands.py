@@ -71,3 +71,27 @@ def test_memory_follows_the_band_not_the_image(far_store, monkeypatch):
     quarter = _band_peak(far_store, 10 * 48 * 36 * 3 * 4, monkeypatch)  # bands of 10 rows
     # measured: whole image (40 x 36 pixels) 10.8 MB, bands of 10 rows 3.4 MB (0.32 of it)
     assert quarter < 0.4 * whole, (quarter, whole)
+
+
+def test_a_strided_region_takes_its_own_tiles_models(far_store):
+    """Each pixel is relit by the model of the tile it lies in, wherever the store passed to
+    relight starts and however it is strided (ltm view's preview, the web export's sample):
+    with a model per 8 x 8 tile alternating between the surface blend and a PTM, a region
+    strided by 3 relights as the whole image does there."""
+    ds = open_store(far_store)
+    chosen = ds[rl.METHOD_MAP]
+    names = chosen.attrs["methods"]
+    blend, ptm = names.index(_blend(ds).name), names.index("ptm")
+    tiles = (-(-ds.sizes["y"] // 8), -(-ds.sizes["x"] // 8))
+    checker = np.where(np.add.outer(*map(np.arange, tiles)) % 2, blend, ptm).astype(np.int16)
+    ds[rl.METHOD_MAP] = (chosen.dims, checker, {**chosen.attrs, "tile": [8, 8]})
+    region = {"y": slice(5, None, 3), "x": slice(1, 30, 3)}
+    whole = rl.relight(ds, directions=DIRECTIONS).isel(region)
+    strided = rl.relight(ds.isel(region), directions=DIRECTIONS)
+    np.testing.assert_allclose(strided.values, whole.values, rtol=0, atol=1e-6)
+
+
+def _blend(ds) -> sf.Blend:
+    chosen = ds[rl.METHOD_MAP]
+    names = [chosen.attrs["methods"][int(c)] for c in np.unique(chosen.values)]
+    return sf.Blend.from_name(next(n for n in names if n.startswith(sf.PREFIX)))
