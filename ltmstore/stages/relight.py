@@ -562,14 +562,22 @@ def _far_image(ds: xr.Dataset, encoded: da.Array, codes: np.ndarray, models: dic
 
     def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, frames: np.ndarray,
               *values: np.ndarray) -> np.ndarray:
-        visible = {c: _visible(ds, blends[c], ys, xs, train, dirs) for c in np.unique(where)
+        shape = frames.shape[1:]  # (y, x[, color]); pixels flat below
+        frames = frames.reshape(len(frames), -1, *shape[2:])
+        values = [v.reshape(-1, *v.shape[2:]) for v in values]
+        where = where.ravel()
+        present = np.unique(where)
+        visible = {c: _visible(ds, blends[c], ys, xs, train, dirs) for c in present
                    if c in blends and blends[c].shadows}
-        out = np.empty((len(dirs), *frames.shape[1:]), np.float32)
-        for c in np.unique(where):
-            inside = where == c
-            out[:, inside] = operators[c](frames[:, inside], [v[inside] for v in values],
-                                          visible.get(c), inside.ravel())
-        return srgb_to_linear(np.clip(out, 0, None, out=out))
+        if len(present) == 1:  # one model for the whole block: no copies in and out
+            out = operators[present[0]](frames, values, visible.get(present[0]), slice(None))
+        else:
+            out = np.empty((len(dirs), *frames.shape[1:]), np.float32)
+            for c in present:
+                inside = where == c
+                out[:, inside] = operators[c](frames[:, inside], [v[inside] for v in values],
+                                              visible.get(c), inside)
+        return srgb_to_linear(np.clip(out, 0, None, out=out)).reshape(len(dirs), *shape)
 
     index = "yx" + ("c" if encoded.ndim == 4 else "")
     at = (da.from_array(np.arange(height), chunks=(rows,)),  # where each block lies
@@ -617,12 +625,12 @@ class _FarOperator:
         return cls(model, train, dirs, weights.astype(np.float64))
 
     def __call__(self, frames: np.ndarray, values: list[np.ndarray],
-                 visible: tuple[np.ndarray, np.ndarray] | None, pixels: np.ndarray
+                 visible: tuple[np.ndarray, np.ndarray] | None, pixels: np.ndarray | slice
                  ) -> np.ndarray:
         """Encoded images ``(d, p[, 3])`` of the pixels whose encoded ``frames (n, p[, 3])``
         and surface ``values`` (:data:`~ltmstore.stages.surface.SURFACE`) are given;
-        ``visible``: the block's shadows at ``train`` and ``dirs``, ``pixels`` selecting
-        these pixels of it."""
+        ``visible``: the block's shadows at ``train`` and ``dirs`` (pixel-major), ``pixels``
+        selecting these pixels of it."""
         if not isinstance(self.model, surface.Blend):
             return _weighted_sum(self.weights, frames)
         blend = self.model
