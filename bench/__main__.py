@@ -60,6 +60,8 @@ BENCHMARKS = {
                                   "scale runs"),
     "export_fidelity": Benchmark("export_fidelity.py", "each export format read back at the "
                                  "held-out lights, beside ltm relight"),
+    "export_speed": Benchmark("export_speed.py", "the web export's whole command: time, "
+                              "memory, held-out PSNR, beside older code"),
     "ingest_memory": Benchmark("ingest_memory.py", "ltm ingest-rti's peak memory and time on "
                                "classic captures of 1-24 MP, beside older code"),
     "relight_memory": Benchmark("relight_memory.py", "ltm relight's peak memory on classic "

@@ -544,17 +544,16 @@ def _encoded_frames(ds: xr.Dataset, used: np.ndarray, color: bool) -> da.Array:
 
 def _far_image(ds: xr.Dataset, encoded: da.Array, codes: np.ndarray, models: dict,
                train: np.ndarray, dirs: np.ndarray) -> da.Array:
-    """Linear images ``(light, y, x[, color])`` of the far-light models: one task per block of
-    the surface variables' (else the frames') column chunks by a band of rows
-    (:func:`~ltmstore.stages.surface.row_bands` of :data:`BAND_BYTES`), each reading its part
-    of the frames and of the surface variables only (a region of the image, an IIIF tile,
-    computes its own columns, not whole rows)."""
+    """Linear images ``(light, y, x[, color])`` of the far-light models: one task per chunk of
+    the frames, split in bands of rows where it would take more than :data:`BAND_BYTES`
+    (:func:`~ltmstore.stages.surface.row_bands`), each reading its part of the frames and of
+    the surface variables only (a region of the image, an IIIF tile, computes its own
+    columns, not whole rows)."""
     height, width = codes.shape
     blends = {c: m for c, m in models.items() if isinstance(m, surface.Blend)}
-    stored = ds[surface.SURFACE[0]] if blends else ds[FRAMES]
-    cols = tuple(stored.chunksizes["x"]) if stored.chunks else (width,)
-    rows = tuple(b.stop - b.start for b in surface.row_bands(
-        (len(train) + len(dirs), height, max(cols)), BAND_BYTES))
+    cols = encoded.chunks[2]  # the frames' own chunks (each read once), their rows split
+    most = surface.row_bands((len(train) + len(dirs), height, max(cols)), BAND_BYTES)[0].stop
+    rows = tuple(part for n in encoded.chunks[1] for part in _split(n, most))
     encoded = encoded.rechunk((-1, rows, cols, *(-1,) * (encoded.ndim - 3)))
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE] if blends else []
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
@@ -602,6 +601,12 @@ def _visible(ds: xr.Dataset, blend: surface.Blend, ys: np.ndarray, xs: np.ndarra
     return tuple(shadows.visible(d, shadows.region_horizons(stored, rows, cols, d,
                                                             spacing=spacing),
                                  blend.shadows) for d in (train, dirs))
+
+
+def _split(n: int, most: int) -> list[int]:
+    """``n`` as the fewest near-equal parts of at most ``most``."""
+    parts = -(-n // most)
+    return [n // parts + (i < n % parts) for i in range(parts)]
 
 
 @dataclass(frozen=True)
