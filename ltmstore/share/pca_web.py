@@ -33,10 +33,11 @@ from __future__ import annotations
 import json
 import os
 import warnings
-from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import dask.array as da
 import numpy as np
 from PIL import Image
 
@@ -52,7 +53,6 @@ DEFAULT_PLANES = 27  # PCA planes (9 JPEG images)
 RESOLUTIONS = (4, 32)  # the least and the most nodes per side
 MAX_PLANES = 48
 MIN_ELEVATION_Z = 0.02  # grid nodes on the horizon are relit a hair above it
-BAND_BYTES = 2**26  # float32 relit values rendered at once
 SAMPLE_PIXELS = 2**15  # at most this many pixels for the PCA's covariance
 
 
@@ -116,6 +116,23 @@ def _display(linear: np.ndarray, transfer: str) -> np.ndarray:
     return np.clip(v, 0.0, 1.0).astype(np.float32)
 
 
+@dataclass
+class _Projection:
+    """A target of :func:`dask.array.store`: each block of relit linear light ``(light, y, x,
+    color)`` written to ``coef``'s pixels as its display values' coefficients."""
+
+    coef: np.ndarray  # (y, x, P)
+    mean: np.ndarray  # (D,)
+    project: np.ndarray  # (D, P)
+    transfer: str
+
+    def __setitem__(self, key: tuple[slice, ...], linear: np.ndarray) -> None:
+        v = _display(linear, self.transfer)
+        pixels = np.ascontiguousarray(v.transpose(1, 2, 0, 3)).reshape(-1, v.shape[0] * 3)
+        self.coef[key[1], key[2]] = ((pixels - self.mean) @ self.project).reshape(
+            v.shape[1], v.shape[2], -1)
+
+
 class _Renderer:
     """A store relit at the grid's directions, as display values ``(pixels, R^2 * 3)``."""
 
@@ -124,7 +141,6 @@ class _Renderer:
         self.transfer = self.ds.attrs.get("acquisition", {}).get("transfer", "srgb")
         self.relit = self._relit(self.ds)
         self.shape = (self.ds.sizes["y"], self.ds.sizes["x"])
-        self.step = max(1, BAND_BYTES // (4 * 3 * self.shape[1] * len(directions)))
 
     def _relit(self, ds: xr.Dataset) -> xr.DataArray:
         """``ds`` relit at the grid's directions, lazily."""
@@ -134,19 +150,17 @@ class _Renderer:
             warnings.simplefilter("ignore")  # extrapolation: that is what the grid asks
             return relight(ds, directions=self.directions)
 
-    def rows(self, rows: slice) -> np.ndarray:
-        """Display values ``(rows * x, R^2 * 3)`` of a band of rows, pixel-major."""
+    def project(self, mean: np.ndarray, project: np.ndarray) -> np.ndarray:
+        """Every pixel's coefficients ``(y, x, P)``: ``project (P, D)`` applied to its display
+        values less ``mean (D,)``, block by block as the relighting computes them (one graph
+        computed once: a graph per band of rows had been culled again for each band, minutes
+        at 24 MP)."""
+        coef = np.empty((*self.shape, len(project)), np.float32)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            v = self.relit.isel(y=rows).values  # (light, y, x, color)
-        v = _display(v, self.transfer)
-        return np.ascontiguousarray(v.transpose(1, 2, 0, 3)).reshape(-1, v.shape[0] * 3)
-
-    def bands(self) -> Iterator[tuple[slice, np.ndarray]]:
-        """``(row slice, display values)`` in bands of about ``BAND_BYTES``."""
-        for y0 in range(0, self.shape[0], self.step):
-            rows = slice(y0, min(y0 + self.step, self.shape[0]))
-            yield rows, self.rows(rows)
+            da.store(self.relit.data, _Projection(coef, mean.astype(np.float32),
+                                                  project.T.copy(), self.transfer), lock=False)
+        return coef
 
     def sample(self) -> np.ndarray:
         """Display values of a regular subsample of at most ``SAMPLE_PIXELS`` pixels: the
@@ -218,9 +232,7 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
     basis_bytes, rng, mean_q, vec_q = quantised_basis(mean, vectors)
     project = np.linalg.pinv(vec_q).astype(np.float32)  # (P, D): least squares on the bytes
     height, width = render.shape
-    coef = np.empty((height, width, planes), np.float32)
-    for rows, values in render.bands():
-        coef[rows] = ((values - mean_q.astype(np.float32)) @ project.T).reshape(-1, width, planes)
+    coef = render.project(mean_q, project)
     lo, hi = coef.reshape(-1, planes).min(axis=0), coef.reshape(-1, planes).max(axis=0)
     scale = np.where(hi > lo, hi - lo, 1e-6)
     codes = np.clip(np.round((coef - lo) / scale * 255), 0, 255).astype(np.uint8)
