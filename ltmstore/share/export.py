@@ -131,7 +131,8 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
               "white": white, **tiled}
     if check is not None:
         weights = _design(fmt, basis, order, check.directions)
-        images = fidelity.display_images(np.einsum("lb,yxbc->lyxc", weights, coef))
+        images = fidelity.banded(lambda rows: np.einsum("lb,yxbc->lyxc", weights, coef[rows]),
+                                 coef.shape[:2], len(weights))
         report["fidelity"] = fidelity.summary(_label(fmt, basis, order), images, check)
     return report
 
@@ -157,7 +158,7 @@ def _export_bilinear(store, out, quality: int, overwrite: bool, resolution: int,
               "white": CAPTURE_WHITE, **tiled}
     if check is not None:
         report["fidelity"] = fidelity.summary(
-            "relight bilinear", fidelity.display_images(info["images"]), check)
+            "relight bilinear", info["images"], check)
     return report
 
 

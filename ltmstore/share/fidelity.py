@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,9 +20,9 @@ from PIL import Image
 
 from ltmstore.core.lights import FAR, disk_to_direction, light_kind, plane_to_direction
 from ltmstore.core.store import open_store
-from ltmstore.core.transfer import encode_images
 
 MAX_LIGHTS = 16  # at most this many of the capture's lights are scored (evenly picked)
+BAND_PIXELS = 2**18  # an export's images at the checkpoints are evaluated this many pixels at once
 
 
 @dataclass(frozen=True)
@@ -47,10 +48,26 @@ class Checkpoints:
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean over the lights of each 8-bit image pair's PSNR (dB), ``(n, y, x, 3)`` each."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    mse = np.maximum(((a - b) ** 2).reshape(len(a), -1).mean(axis=1), 1e-12)
-    return float(np.mean(10 * np.log10(255.0 ** 2 / mse)))
+    """Mean over the lights of each 8-bit image pair's PSNR (dB), ``(n, y, x, 3)`` each
+    (exact: integer squared differences, a light at a time)."""
+    mse = []
+    for x, y in zip(a, b, strict=True):
+        d = x.astype(np.int32) - y.astype(np.int32)
+        mse.append(max(float(np.square(d, out=d).sum(dtype=np.int64)) / d.size, 1e-12))
+    return float(np.mean(10 * np.log10(255.0 ** 2 / np.array(mse))))
+
+
+def banded(render: Callable[[slice], np.ndarray], shape: tuple[int, int], n: int
+           ) -> np.ndarray:
+    """8-bit images ``(n, y, x, 3)`` of ``shape (y, x)`` from ``render(rows)``, display values
+    ``(n, rows, x, 3)`` in ``[0, 1]``, a band of rows at a time (:data:`BAND_PIXELS`): an
+    export's images at the checkpoints without its float values whole."""
+    images = np.empty((n, *shape, 3), np.uint8)
+    step = max(1, BAND_PIXELS // shape[1])
+    for y0 in range(0, shape[0], step):
+        rows = slice(y0, min(y0 + step, shape[0]))
+        images[:, rows] = display_images(render(rows))
+    return images
 
 
 def _photos(ds, records: list[dict]) -> np.ndarray | None:
@@ -68,7 +85,7 @@ def checkpoints(store: str | os.PathLike) -> Checkpoints | None:
     """The held-out lights the ingest recorded, else up to :data:`MAX_LIGHTS` of the capture's
     own lights, with ``ltm relight``'s images there (and the held-out photographs); None for a
     store that records neither (an old one)."""
-    from ltmstore.stages.relight import relight  # share sits above stages
+    from ltmstore.stages.relight import encoded_images, relight  # share sits above stages
 
     ds = open_store(store)
     records = ds.attrs.get("stages", {}).get("ingest", {}).get("held_out") or []
@@ -76,7 +93,7 @@ def checkpoints(store: str | os.PathLike) -> Checkpoints | None:
         warnings.simplefilter("ignore")
         if records:
             directions = np.array([r["direction"] for r in records], float)
-            linear = relight(ds, directions=directions).values
+            linear = relight(ds, directions=directions)
             photos = _photos(ds, records)
         elif not all(name in ds for name in ("pose_r", "pose_s", "pose_valid")):
             return None
@@ -92,12 +109,12 @@ def checkpoints(store: str | os.PathLike) -> Checkpoints | None:
             else:
                 height = float(ds.attrs["acquisition"]["plane"]["height"])
                 directions = plane_to_direction(lights[:, 0], lights[:, 1], height)
-            linear = relight(ds, lights).values
+            linear = relight(ds, lights)
             photos = None
-    transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-    return Checkpoints(directions=np.asarray(directions, float),
-                       store=encode_images(linear, transfer), photos=photos,
-                       held_out=bool(records))
+        transfer = ds.attrs.get("acquisition", {}).get("transfer", "srgb")
+        store_images = np.stack(list(encoded_images(linear, transfer)))  # a band at a time
+    return Checkpoints(directions=np.asarray(directions, float), store=store_images,
+                       photos=photos, held_out=bool(records))
 
 
 def display_images(values: np.ndarray) -> np.ndarray:

@@ -44,6 +44,7 @@ from PIL import Image
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import linear_to_srgb
+from ltmstore.share.fidelity import banded
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -223,7 +224,7 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
     -------
     dict
         ``width``, ``height``, ``directions`` (grid nodes), ``planes`` and, with
-        ``directions``, ``images``: display values ``(n, y, x, 3)``.
+        ``directions``, ``images``: 8-bit display values ``(n, y, x, 3)``.
     """
     check(resolution, planes)
     folder = Path(folder)
@@ -250,6 +251,7 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
     (folder / "info.json").write_text(json.dumps(info, separators=(",", ":")))
     out = {"width": width, "height": height, "directions": resolution ** 2, "planes": planes}
     if directions is not None:
-        out["images"] = evaluate(codes / np.float32(255) * scale + lo, mean_q, vec_q, resolution,
-                                 directions)
+        out["images"] = banded(lambda rows: evaluate(
+            codes[rows] / np.float32(255) * scale + lo, mean_q, vec_q, resolution, directions),
+            (height, width), len(directions))
     return out

@@ -488,7 +488,7 @@ def _finish(ds: xr.Dataset, apply, views, color: bool) -> xr.DataArray:
 
 def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
     """Directions on a far-light store: each tile's chosen model, evaluated from the frames
-    block by block (:func:`_far_block`)."""
+    block by block (:func:`_far_image`)."""
     if METHOD_MAP not in ds:
         raise LtmError("the far-light store has no method_map; run `ltm reconstruct` again "
                        "with this version")
@@ -651,9 +651,11 @@ class _FarOperator:
 
 
 def _weighted_sum(weights: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """``weights (d, n) @ values (n, ...)`` in float64 (one BLAS call), as float32: the same
-    value for a pixel in any block (float32 BLAS sums in an order that changes with the
-    number of pixels, in the last bit of 1.5 % of the values at 1000 x 300 pixels)."""
+    """``weights (d, n) @ values (n, ...)`` in float64 (one BLAS call), as float32. BLAS sums
+    in an order that changes with the number of pixels: in float32 that changed the last bit
+    of 1.5 % of the values of a 1000 x 300 image between blocks of rows; float64's last bits
+    next to never reach float32's (blocks of one row and the whole image agree bit for bit,
+    tests/stages/test_relight_bands.py)."""
     flat = values.reshape(len(values), -1).astype(np.float64)
     return (weights @ flat).astype(np.float32).reshape(len(weights), *values.shape[1:])
 
