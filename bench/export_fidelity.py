@@ -40,7 +40,9 @@ CASES = {  # name: (export arguments, output name, reader)
     "ptm": ({"fmt": "ptm"}, "out.ptm", read_ptm),
     "hsh-3": ({"fmt": "hsh", "order": 3}, "out.rti", read_rti),
     "web-hsh": ({"fmt": "relight", "basis": "hsh"}, "web", read_web),
-    "web-bilinear": ({"fmt": "relight", "basis": "bilinear"}, "web", read_web),
+    "web-bilinear": ({"fmt": "relight", "basis": "bilinear"}, "web", read_web),  # quality auto
+    "web-bilinear-q95": ({"fmt": "relight", "basis": "bilinear", "quality": 95}, "web",
+                         read_web),
     "web-bilinear-q100": ({"fmt": "relight", "basis": "bilinear", "quality": 100}, "web",
                           read_web),
 }
@@ -95,7 +97,7 @@ def measure(store: str, only: list[str], relight_cli: str | None = None) -> dict
                 "db_vs_photos": round(psnr(images, photos), 2),
                 "db_vs_ltm_relight": round(psnr(images, store_png.astype(float)), 2),
                 "bytes": size(Path(tmp) / name / file), "seconds": round(seconds, 1),
-                **{k: report[k] for k in ("terms", "directions") if k in report}}
+                **{k: report[k] for k in ("terms", "directions", "quality") if k in report}}
             if relight_cli and reader is read_web:
                 drawn = drawn_by_relight(relight_cli, Path(tmp) / name / file, dirs)
                 out["formats"][name]["relight_cli_db_vs_photos"] = round(psnr(drawn, photos), 2)

@@ -29,7 +29,7 @@ WEB_HSH_ORDER = 2  # the web readers evaluate 9 HSH terms
 CAPTURE_WHITE = 1.0  # the exports keep the capture's exposure, as ltm relight writes it
 
 
-def _check(fmt: str, order: int, basis: str, color: str, quality: int) -> None:
+def _check(fmt: str, order: int, basis: str, color: str, quality: int | None) -> None:
     if fmt not in FORMATS:
         raise LtmError(f"--format {fmt!r} is unknown; expected one of {', '.join(FORMATS)}")
     if order not in HSH_ORDERS:
@@ -40,13 +40,13 @@ def _check(fmt: str, order: int, basis: str, color: str, quality: int) -> None:
         raise LtmError(f"--color {color!r} must be one of {', '.join(COLORS)}")
     if color == "lrgb" and fmt != "ptm":
         raise LtmError("--color lrgb is a PTM format; use it with --format ptm")
-    if not 1 <= quality <= 100:
+    if quality is not None and not 1 <= quality <= 100:
         raise LtmError(f"--quality {quality!r} must be a JPEG quality from 1 to 100")
 
 
 def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order: int = 3,
            basis: str = "bilinear", color: str = "rgb",
-           quality: int = relight_web.DEFAULT_QUALITY, overwrite: bool = False,
+           quality: int | None = None, overwrite: bool = False,
            resolution: int = pca_web.DEFAULT_RESOLUTION,
            planes: int = pca_web.DEFAULT_PLANES, score: bool = True,
            layout: str = "image", tile_size: int = tiles.TILE_SIZE,
@@ -71,8 +71,10 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
         capture's exposure), ``ptm`` and ``hsh`` (9 terms) are fitted to it.
     color : {"rgb", "lrgb"}
         PTM only: a polynomial per channel, or one luminance polynomial times a colour.
-    quality : int
-        JPEG quality of the web format's planes.
+    quality : int, optional
+        JPEG quality of the web format's planes; default: for ``bilinear``, the lowest whose
+        JPEG costs at most 0.5 dB at the capture's held-out lights
+        (:mod:`ltmstore.share.jpeg_quality`), else 95.
     overwrite : bool
     resolution, planes : int
         ``bilinear`` only: grid nodes per side and PCA planes.
@@ -102,7 +104,8 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
     if layout != "image":
         tiles.check_size(samples.shape[1], samples.shape[0], tile_size)
     check = fidelity.checkpoints(store) if score else None
-    pyramid = {"layout": layout, "tile_size": tile_size, "overlap": overlap, "quality": quality}
+    fixed = relight_web.DEFAULT_QUALITY if quality is None else quality
+    pyramid = {"layout": layout, "tile_size": tile_size, "overlap": overlap, "quality": fixed}
     if fmt == "relight" and basis == "bilinear":
         return _export_bilinear(store, out, quality, overwrite, resolution, planes, check,
                                 pyramid)
@@ -122,7 +125,7 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
             elif fmt == "hsh":
                 hsh_rti.write(tmp, coef)
             else:
-                relight_web.write(tmp, coef, basis, quality=quality)
+                relight_web.write(tmp, coef, basis, quality=fixed)
                 tiled = tiles.tile_planes(tmp, **pyramid)
     report = {"path": os.fspath(out), "format": fmt,
               "basis": basis if fmt == "relight" else fmt, "color": color,
@@ -150,12 +153,14 @@ def _export_bilinear(store, out, quality: int, overwrite: bool, resolution: int,
     its planes laid out as ``pyramid`` says (:func:`ltmstore.share.tiles.tile_planes`)."""
     with atomic_output(out, overwrite=overwrite, folder=True, inputs=(store,)) as tmp:
         info = pca_web.write(store, tmp, resolution=resolution, planes=planes, quality=quality,
-                             directions=None if check is None else check.directions)
-        tiled = tiles.tile_planes(tmp, **pyramid)
+                             checkpoints=check)
+        tiled = tiles.tile_planes(tmp, **{**pyramid, "quality": info["quality"]})
     report = {"path": os.fspath(out), "format": "relight", "basis": "bilinear",
               "color": "rgb", "terms": planes, "width": info["width"],
               "height": info["height"], "directions": info["directions"],
-              "white": CAPTURE_WHITE, **tiled}
+              "white": CAPTURE_WHITE, "quality": info["quality"], **tiled}
+    if "jpeg" in info:
+        report["jpeg"] = info["jpeg"]
     if check is not None:
         report["fidelity"] = fidelity.summary(
             "relight bilinear", info["images"], check)

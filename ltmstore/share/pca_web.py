@@ -44,7 +44,9 @@ from PIL import Image
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import linear_to_srgb
-from ltmstore.share.fidelity import banded
+from ltmstore.share import jpeg_quality
+from ltmstore.share.fidelity import Checkpoints, banded
+from ltmstore.share.relight_web import DEFAULT_QUALITY
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -201,7 +203,7 @@ def quantised_basis(mean: np.ndarray, vectors: np.ndarray
 
 def write(store: str | os.PathLike, folder: str | os.PathLike, *,
           resolution: int = DEFAULT_RESOLUTION, planes: int = DEFAULT_PLANES,
-          quality: int = 95, directions: np.ndarray | None = None) -> dict:
+          quality: int | None = None, checkpoints: Checkpoints | None = None) -> dict:
     """Relight the store at the grid's nodes and write Relight's ``bilinear`` web format.
 
     Parameters
@@ -214,17 +216,21 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
         Grid nodes per side (``resolution^2`` light directions).
     planes : int
         PCA planes, a multiple of 3.
-    quality : int
-        JPEG quality of the planes.
-    directions : ndarray, shape (n, 3), optional
-        Light directions to evaluate the written file at (its quantised basis and its planes
-        as decoded from the JPEG files).
+    quality : int, optional
+        JPEG quality of the planes; default: chosen at the ``checkpoints``
+        (:func:`ltmstore.share.jpeg_quality.choose`), else Relight's default, 95.
+    checkpoints : Checkpoints, optional
+        Lights and ``ltm relight``'s images there (:func:`ltmstore.share.fidelity.checkpoints`)
+        to choose the quality by and to evaluate the written file at (its quantised basis and
+        its planes as decoded from the JPEG files).
 
     Returns
     -------
     dict
-        ``width``, ``height``, ``directions`` (grid nodes), ``planes`` and, with
-        ``directions``, ``images``: 8-bit display values ``(n, y, x, 3)``.
+        ``width``, ``height``, ``directions`` (grid nodes), ``planes``, ``quality`` and, with
+        ``checkpoints``, ``images``: 8-bit display values ``(n, y, x, 3)`` at their lights;
+        where the quality was chosen, ``jpeg`` (:func:`ltmstore.share.jpeg_quality.choose`'s
+        record).
     """
     check(resolution, planes)
     folder = Path(folder)
@@ -241,21 +247,34 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
     coef *= 255
     codes = np.clip(np.round(coef, out=coef), 0, 255, out=coef).astype(np.uint8)
     del coef
+
+    def images(part: np.ndarray) -> np.ndarray:  # 8-bit images at the checkpoints' lights
+        return banded(lambda rows: evaluate(part[rows] / np.float32(255) * scale + lo, mean_q,
+                                            vec_q, resolution, checkpoints.directions),
+                      part.shape[:2], len(checkpoints.directions))
+
+    choice = None
+    if quality is None and checkpoints is not None:
+        wy, wx = jpeg_quality.window((height, width))
+        quality, choice = jpeg_quality.choose(codes[wy, wx], images,
+                                              checkpoints.store[:, wy, wx])
+    quality = DEFAULT_QUALITY if quality is None else int(quality)
     for j in range(planes // 3):
         Image.fromarray(np.ascontiguousarray(codes[:, :, 3 * j:3 * j + 3])).save(
-            folder / f"plane_{j}.jpg", quality=int(quality), subsampling=0)
+            folder / f"plane_{j}.jpg", quality=quality, subsampling=0)
         with Image.open(folder / f"plane_{j}.jpg") as written:  # as a viewer decodes it
             codes[:, :, 3 * j:3 * j + 3] = np.asarray(written.convert("RGB"))
     info = {"width": width, "height": height, "format": "jpg", "type": "bilinear",
             "resolution": int(resolution), "colorspace": "mrgb", "nplanes": int(planes),
-            "quality": int(quality), "colorprofile": "sRGB",
+            "quality": quality, "colorprofile": "sRGB",
             "basis": basis_bytes.ravel().tolist(),
             "materials": [{"range": rng.tolist(), "scale": scale.tolist(),
                            "bias": (-lo / scale).tolist()}]}
     (folder / "info.json").write_text(json.dumps(info, separators=(",", ":")))
-    out = {"width": width, "height": height, "directions": resolution ** 2, "planes": planes}
-    if directions is not None:
-        out["images"] = banded(lambda rows: evaluate(
-            codes[rows] / np.float32(255) * scale + lo, mean_q, vec_q, resolution, directions),
-            (height, width), len(directions))
+    out = {"width": width, "height": height, "directions": resolution ** 2, "planes": planes,
+           "quality": quality}
+    if choice is not None:
+        out["jpeg"] = choice
+    if checkpoints is not None:
+        out["images"] = images(codes)
     return out
