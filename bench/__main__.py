@@ -83,6 +83,8 @@ BENCHMARKS = {
     "phone_effects": Benchmark("phone_effects.py", "the two-phone chain with phone effects"),
     "phone_effects_phone_size": Benchmark("phone_effects_phone_size.py", "the phone effects "
                                           "at camera B 720 px: product against oracle"),
+    "openlime_fidelity": Benchmark("openlime_fidelity.py", "the web export drawn by OpenLIME "
+                                   "at real captures' held-out lights"),
     "codec_split": Benchmark("codec_split.py", "where camera B's H.264 loss lands: frame "
                              "error by type, LTM error on observed and filled cells"),
     "codec_bitrate": Benchmark("codec_bitrate.py", "camera B's H.264 by its bits per pixel: "

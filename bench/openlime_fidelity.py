@@ -1,0 +1,99 @@
+"""The web export drawn by OpenLIME itself at the held-out lights of real captures: its canvas
+(headless Chromium, WebGL, ``LayerRTI.setLight``) against the held-out photographs, beside the
+format's own math (``tests/rti_readers.py``) and ``ltm relight``.
+
+Usage (stores made by ``ltm ingest-rti DIRS.lp S.zarr --holdout-lights 6`` + ``ltm
+reconstruct``; OpenLIME's sources as for ``tests/share/test_openlime.py``)::
+
+    python bench/openlime_fidelity.py coin=/tmp/coin.zarr icon=/tmp/icon.zarr [--quality 95]
+
+Writes ``bench/results/openlime_fidelity.json`` (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import sys
+import tempfile
+import threading
+import warnings
+from http.server import ThreadingHTTPServer
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE.parent / "tests" / "share"))
+
+from browser import OPENLIME_SRC, Browser, openlime_page  # noqa: E402
+from export_fidelity import held_out  # noqa: E402
+from rti_readers import psnr, read_web, relit  # noqa: E402
+from test_openlime import Handler, canvas  # noqa: E402
+
+import ltmstore  # noqa: E402
+from ltmstore.core.transfer import encode_images  # noqa: E402
+from ltmstore.share.export import export  # noqa: E402
+
+
+def drawn(folder: Path, report: dict, dirs: np.ndarray) -> np.ndarray:
+    """OpenLIME's canvas ``(n, y, x, 3)`` at ``dirs``, the export served from ``folder``."""
+    (folder / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
+    (folder / "page.html").write_text(openlime_page(report["width"], report["height"], "rti",
+                                                    "image", "/web/info.json"))
+    server = ThreadingHTTPServer(("127.0.0.1", 0),
+                                 functools.partial(Handler, directory=str(folder)))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        with Browser(64, 64) as browser:
+            browser.goto(f"http://127.0.0.1:{server.server_address[1]}/page.html")
+            browser.wait_for(f"window.ready === true && viewer.canvasElement.width === "
+                             f"{report['width']}")
+            frames = []
+            for x, y, _ in dirs:
+                browser.evaluate(f"layer.setLight([{x}, {y}], 0), 1")
+                frames.append(canvas(browser))
+    finally:
+        server.shutdown()
+        server.server_close()
+    return np.stack(frames)
+
+
+def measure(store: str, quality: int | None) -> dict:
+    dirs, photos = held_out(store)
+    ds = ltmstore.open_store(store)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        store_png = encode_images(ltmstore.relight(ds, directions=dirs).values,
+                                  ds.attrs["acquisition"].get("transfer", "srgb"))
+    with tempfile.TemporaryDirectory() as tmp:
+        report = export(store, Path(tmp) / "web", fmt="relight", quality=quality)
+        coef, basis = read_web(Path(tmp) / "web")
+        reader = relit(coef, basis(dirs))
+        openlime = drawn(Path(tmp), report, dirs)
+    return {"held_out_lights": len(dirs), "quality": report["quality"],
+            "ltm_relight_db": round(psnr(store_png, photos), 2),
+            "reader_db": round(psnr(reader, photos), 2),
+            "openlime_db": round(psnr(openlime, photos), 2),
+            "openlime_vs_reader_db": round(psnr(openlime, reader), 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("stores", nargs="+", help="NAME=STORE")
+    parser.add_argument("--quality", type=int, help="the planes' JPEG quality (default: auto)")
+    parser.add_argument("--out", type=Path, default=HERE / "results")
+    args = parser.parse_args()
+    results = {"command": " ".join(sys.argv), "openlime": "src of commit 5b4e27b"}
+    for item in args.stores:
+        name, store = item.split("=", 1)
+        results[name] = measure(store, args.quality)
+        print(name, results[name], flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "openlime_fidelity.json").write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()
