@@ -44,7 +44,7 @@ def decoded(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Linear luminance ``(t, h, w)`` of every frame, and each frame's picture type."""
     lut = transfer_lut("srgb", bits=8)
     with av.open(str(path)) as container:
-        pairs = [(lut[frame_to_rgb(f)] @ LUMA, int(f.pict_type))
+        pairs = [((lut[frame_to_rgb(f)] @ LUMA).astype(np.float32), int(f.pict_type))
                  for f in container.decode(video=0)]
     return np.stack([p for p, _ in pairs]), np.array([t for _, t in pairs])
 
@@ -112,10 +112,11 @@ def chart(result: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     observed = np.array(result["observed_cells"])
+    both = [np.array(result[name]["ltm"]["per_cell_error_db"]) for name in ("ideal", "codec")]
+    low, high = np.floor(min(map(np.min, both))), np.ceil(max(map(np.max, both)))
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.2), constrained_layout=True)
-    for ax, name in zip(axes, ("ideal", "codec"), strict=True):
-        cells = np.array(result[name]["ltm"]["per_cell_error_db"])
-        im = ax.imshow(cells.T, origin="lower", vmin=-45, vmax=-15, cmap="magma")
+    for ax, name, cells in zip(axes, ("ideal", "codec"), both, strict=True):
+        im = ax.imshow(cells.T, origin="lower", vmin=low, vmax=high, cmap="magma")
         for r, s in zip(*np.nonzero(observed), strict=True):
             ax.add_patch(plt.Rectangle((r - 0.5, s - 0.5), 1, 1, fill=False, ec="c", lw=0.8))
         ax.set_title(f"{name}: SNR_Y {result[name]['ltm']['snr_y_db']:.2f} dB")
