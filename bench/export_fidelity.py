@@ -58,6 +58,15 @@ def held_out(store: str) -> tuple[np.ndarray, np.ndarray]:
     return np.array([r["direction"] for r in record], float), photos
 
 
+def store_images(store: str, dirs: np.ndarray) -> np.ndarray:
+    """``ltm relight``'s 8-bit images at ``dirs``, as its PNGs hold them."""
+    ds = ltmstore.open_store(store)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return encode_images(ltmstore.relight(ds, directions=dirs).values,
+                             ds.attrs["acquisition"].get("transfer", "srgb"))
+
+
 def size(path: Path) -> int:
     return sum(f.stat().st_size for f in path.rglob("*")) if path.is_dir() else path.stat().st_size
 
@@ -75,11 +84,7 @@ def drawn_by_relight(relight_cli: str, web: Path, dirs: np.ndarray) -> np.ndarra
 
 def measure(store: str, only: list[str], relight_cli: str | None = None) -> dict:
     dirs, photos = held_out(store)
-    ds = ltmstore.open_store(store)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        store_png = encode_images(ltmstore.relight(ds, directions=dirs).values,
-                                  ds.attrs["acquisition"].get("transfer", "srgb"))
+    store_png = store_images(store, dirs)
     out = {"held_out_lights": len(dirs), "ltm_relight_db": round(psnr(store_png, photos), 2),
            "formats": {}}
     with tempfile.TemporaryDirectory() as tmp:

@@ -13,28 +13,20 @@ Writes ``bench/results/openlime_fidelity.json`` (``--out``).
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import sys
 import tempfile
-import threading
-import warnings
-from http.server import ThreadingHTTPServer
 from pathlib import Path
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
-sys.path.insert(0, str(HERE.parent / "tests" / "share"))
 
-from browser import OPENLIME_SRC, Browser, openlime_page  # noqa: E402
-from export_fidelity import held_out  # noqa: E402
+from browser import OPENLIME_SRC, Browser, draw_openlime, openlime_page, serve  # noqa: E402
+from export_fidelity import held_out, store_images  # noqa: E402
 from rti_readers import psnr, read_web, relit  # noqa: E402
-from test_openlime import Handler, canvas  # noqa: E402
 
-import ltmstore  # noqa: E402
-from ltmstore.core.transfer import encode_images  # noqa: E402
 from ltmstore.share.export import export  # noqa: E402
 
 
@@ -43,31 +35,14 @@ def drawn(folder: Path, report: dict, dirs: np.ndarray) -> np.ndarray:
     (folder / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
     (folder / "page.html").write_text(openlime_page(report["width"], report["height"], "rti",
                                                     "image", "/web/info.json"))
-    server = ThreadingHTTPServer(("127.0.0.1", 0),
-                                 functools.partial(Handler, directory=str(folder)))
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
-        with Browser(64, 64) as browser:
-            browser.goto(f"http://127.0.0.1:{server.server_address[1]}/page.html")
-            browser.wait_for(f"window.ready === true && viewer.canvasElement.width === "
-                             f"{report['width']}")
-            frames = []
-            for x, y, _ in dirs:
-                browser.evaluate(f"layer.setLight([{x}, {y}], 0), 1")
-                frames.append(canvas(browser))
-    finally:
-        server.shutdown()
-        server.server_close()
-    return np.stack(frames)
+    with serve(folder) as url, Browser(64, 64) as browser:
+        return draw_openlime(browser, f"{url}/page.html", (report["width"], report["height"]),
+                             dirs)
 
 
 def measure(store: str, quality: int | None) -> dict:
     dirs, photos = held_out(store)
-    ds = ltmstore.open_store(store)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        store_png = encode_images(ltmstore.relight(ds, directions=dirs).values,
-                                  ds.attrs["acquisition"].get("transfer", "srgb"))
+    store_png = store_images(store, dirs)
     with tempfile.TemporaryDirectory() as tmp:
         report = export(store, Path(tmp) / "web", fmt="relight", quality=quality)
         coef, basis = read_web(Path(tmp) / "web")

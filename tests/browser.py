@@ -5,15 +5,24 @@ browser download, no driver besides ``websockets``."""
 from __future__ import annotations
 
 import base64
+import contextlib
+import functools
+import io
 import itertools
 import json
 import os
 import shutil
 import subprocess
 import tempfile
+import threading
 import time
 import urllib.request
+from collections.abc import Iterator
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+
+import numpy as np
+from PIL import Image
 
 CHROMIUM = ("chromium", "/usr/bin/chromium", "chromium-browser")
 # Set (to anything but "" or "0") where a missing browser must fail the run: .ci/run sets it.
@@ -117,6 +126,66 @@ def openlime_page(width: int, height: int, kind: str, layout: str, url: str) -> 
     once the layer is, ``window.viewer`` and ``window.layer`` for the test."""
     return OPENLIME_PAGE.format(w=width, h=height, imports=openlime_import_map(), kind=kind,
                                 layout=layout, url=url)
+
+
+class StaticHandler(SimpleHTTPRequestHandler):
+    """Static files; OpenLIME's sources import some modules without their ``.js``."""
+
+    def translate_path(self, path: str) -> str:
+        found = super().translate_path(path)
+        if not os.path.exists(found) and os.path.exists(found + ".js"):
+            return found + ".js"
+        return found
+
+    def log_message(self, *args) -> None:
+        pass
+
+
+@contextlib.contextmanager
+def serve(folder: Path) -> Iterator[str]:
+    """A loopback-only server of ``folder`` (page, export, OpenLIME's sources); its URL."""
+    server = ThreadingHTTPServer(("127.0.0.1", 0),
+                                 functools.partial(StaticHandler, directory=str(folder)))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+# a frame drawn now, as a PNG data URL: headless Chromium runs requestAnimationFrame (which
+# OpenLIME's redraw waits on) about once a second here, so the tests draw synchronously
+FRAME = "viewer.draw(performance.now()), viewer.canvasElement.toDataURL('image/png')"
+
+
+def canvas(browser: Browser) -> np.ndarray:
+    """The canvas (y, x, 3) once two frames in a row agree (its planes may still be loading)."""
+    last = None
+    for _ in range(50):
+        data = browser.evaluate(FRAME)
+        frame = np.asarray(Image.open(io.BytesIO(base64.b64decode(data.split(",", 1)[1])))
+                           .convert("RGB"), float)
+        if last is not None and np.array_equal(frame, last) and frame.any():  # drawn
+            return frame
+        last = frame
+        time.sleep(0.02)
+    raise AssertionError("OpenLIME's canvas did not settle in 50 frames")
+
+
+def draw_openlime(browser: Browser, url: str, size: tuple[int, int],
+                  dirs: np.ndarray) -> np.ndarray:
+    """OpenLIME's canvas ``(n, y, x, 3)`` of the page at ``url`` (:func:`openlime_page`, its
+    canvas ``size = (width, height)``) at each light of ``dirs`` (directions ``(x, y, z)``;
+    OpenLIME's light is ``(x, y)`` with ``z = sqrt(1 - x^2 - y^2)``)."""
+    browser.goto(url)
+    browser.wait_for(f"window.ready === true && viewer.canvasElement.width === {size[0]} && "
+                     f"viewer.canvasElement.height === {size[1]}")
+    frames = []
+    for x, y, _ in dirs:
+        browser.evaluate(f"layer.setLight([{x}, {y}], 0), 1")
+        frames.append(canvas(browser))
+    return np.stack(frames)
 
 
 def chromium_path() -> str:

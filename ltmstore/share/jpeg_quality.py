@@ -27,17 +27,27 @@ WINDOW = 1024  # side of the window the choice is made on, in pixels at most
 BLOCK = 16  # the window starts on a multiple of this (JPEG's macroblocks)
 
 
+def encode(rgb: np.ndarray, quality: int) -> bytes:
+    """Three planes ``rgb (y, x, 3)`` (uint8) as the export writes them: JPEG at ``quality``,
+    no chroma subsampling (each channel is another plane)."""
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb)).save(buffer, format="JPEG",
+                                                    quality=int(quality), subsampling=0)
+    return buffer.getvalue()
+
+
+def decode(data: bytes) -> np.ndarray:
+    """A JPEG's ``(y, x, 3)`` uint8 as a viewer decodes it."""
+    with Image.open(io.BytesIO(data)) as image:
+        return np.asarray(image.convert("RGB"))
+
+
 def round_trip(codes: np.ndarray, quality: int) -> np.ndarray:
-    """The planes ``codes (y, x, 3 j)`` (uint8) as a viewer decodes them after JPEG at
-    ``quality`` (three planes an image, no chroma subsampling, as the export writes them)."""
+    """The planes ``codes (y, x, 3 j)`` (uint8) as a viewer decodes them after :func:`encode`
+    at ``quality``, three planes an image."""
     out = np.empty_like(codes)
     for j in range(0, codes.shape[2], 3):
-        buffer = io.BytesIO()
-        Image.fromarray(np.ascontiguousarray(codes[:, :, j:j + 3])).save(
-            buffer, format="JPEG", quality=int(quality), subsampling=0)
-        buffer.seek(0)
-        with Image.open(buffer) as decoded:
-            out[:, :, j:j + 3] = np.asarray(decoded.convert("RGB"))
+        out[:, :, j:j + 3] = decode(encode(codes[:, :, j:j + 3], quality))
     return out
 
 

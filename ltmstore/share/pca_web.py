@@ -39,7 +39,6 @@ from typing import TYPE_CHECKING
 
 import dask.array as da
 import numpy as np
-from PIL import Image
 
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
@@ -260,10 +259,9 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
                                               checkpoints.store[:, wy, wx])
     quality = DEFAULT_QUALITY if quality is None else int(quality)
     for j in range(planes // 3):
-        Image.fromarray(np.ascontiguousarray(codes[:, :, 3 * j:3 * j + 3])).save(
-            folder / f"plane_{j}.jpg", quality=quality, subsampling=0)
-        with Image.open(folder / f"plane_{j}.jpg") as written:  # as a viewer decodes it
-            codes[:, :, 3 * j:3 * j + 3] = np.asarray(written.convert("RGB"))
+        data = jpeg_quality.encode(codes[:, :, 3 * j:3 * j + 3], quality)
+        (folder / f"plane_{j}.jpg").write_bytes(data)
+        codes[:, :, 3 * j:3 * j + 3] = jpeg_quality.decode(data)  # as a viewer decodes it
     info = {"width": width, "height": height, "format": "jpg", "type": "bilinear",
             "resolution": int(resolution), "colorspace": "mrgb", "nplanes": int(planes),
             "quality": quality, "colorprofile": "sRGB",

@@ -16,64 +16,20 @@ OpenLIME's light is ``(x, y)`` with ``z = sqrt(1 - x^2 - y^2)``).
 
 from __future__ import annotations
 
-import base64
-import functools
-import io
-import os
-import threading
-import time
-from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
-
 import numpy as np
 import pytest
-from browser import OPENLIME_SRC, Browser, openlime_page
-from PIL import Image
+from browser import OPENLIME_SRC, Browser, draw_openlime, openlime_page, serve
 from rti_readers import psnr, read_web, reference, relit
 
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.share.export import export
 
-# a frame drawn now, as a PNG data URL: headless Chromium runs requestAnimationFrame (which
-# OpenLIME's redraw waits on) about once a second here, so the test draws synchronously
-FRAME = "viewer.draw(performance.now()), viewer.canvasElement.toDataURL('image/png')"
-
-
-class Handler(SimpleHTTPRequestHandler):
-    """Static files; OpenLIME's sources import some modules without their ``.js``."""
-
-    def translate_path(self, path: str) -> str:
-        found = super().translate_path(path)
-        if not os.path.exists(found) and os.path.exists(found + ".js"):
-            return found + ".js"
-        return found
-
-    def log_message(self, *args) -> None:
-        pass
-
 
 @pytest.fixture
 def served(tmp_path):
-    """A loopback-only server of ``tmp_path`` (page, export, OpenLIME's sources); its URL."""
-    server = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Handler,
-                                                                     directory=str(tmp_path)))
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    yield f"http://127.0.0.1:{server.server_address[1]}"
-    server.shutdown()
-    server.server_close()
-
-
-def canvas(browser: Browser) -> np.ndarray:
-    """The canvas (y, x, 3) once two frames in a row agree (its planes may still be loading)."""
-    last = None
-    for _ in range(50):
-        data = browser.evaluate(FRAME)
-        frame = np.asarray(Image.open(io.BytesIO(base64.b64decode(data.split(",", 1)[1])))
-                           .convert("RGB"), float)
-        if last is not None and np.array_equal(frame, last) and frame.any():  # drawn
-            return frame
-        last = frame
-        time.sleep(0.02)
-    raise AssertionError("OpenLIME's canvas did not settle in 50 frames")
+    """A loopback-only server of ``tmp_path`` (:func:`browser.serve`); its URL."""
+    with serve(tmp_path) as url:
+        yield url
 
 
 # lowest PSNRs: OpenLIME's canvas against the test's reader (any of the 10 lights), and against
@@ -99,15 +55,8 @@ def test_openlime_renders_the_relight_export(basis, small_store, tmp_path, serve
     expected = relit(coef, weights(dirs))  # the file relit by test_export's reader
     shown = np.round(255 * linear_to_srgb(rgb / report["white"]))
     with Browser(64, 64) as browser:
-        browser.goto(f"{served}/page.html")
-        browser.wait_for(f"window.ready === true && viewer.canvasElement.width === "
-                         f"{report['width']} && viewer.canvasElement.height === "
-                         f"{report['height']}")
-        frames = []
-        for x, y, _ in dirs:  # OpenLIME's light is (x, y), z = sqrt(1 - x^2 - y^2)
-            browser.evaluate(f"layer.setLight([{x}, {y}], 0), 1")
-            frames.append(canvas(browser))
-    got = np.stack(frames)
+        got = draw_openlime(browser, f"{served}/page.html",
+                            (report["width"], report["height"]), dirs)
     assert got.shape == expected.shape
     each = [psnr(a[None], b[None]) for a, b in zip(got, expected, strict=True)]
     against_relight = psnr(got, shown)

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import OPENLIME_SRC, Browser, openlime_page
+from browser import OPENLIME_SRC, Browser, draw_openlime, openlime_page
 from PIL import Image
 from pipeline_helpers import run_ltm
 from rti_readers import psnr, reference
-from test_openlime import canvas, served  # noqa: F401 (served: a fixture)
+from test_openlime import served  # noqa: F401 (a fixture)
 
 from ltmstore.core.errors import LtmError
 from ltmstore.share.export import export
@@ -141,18 +141,6 @@ def test_cli_writes_deepzoom(small_store, tmp_path):
 OPENLIME_LOWEST = (54.0, 6)
 
 
-def draw(browser: Browser, url: str, size: tuple[int, int], dirs: np.ndarray) -> np.ndarray:
-    """OpenLIME's canvas at each light of ``dirs``."""
-    browser.goto(url)
-    browser.wait_for(f"window.ready === true && viewer.canvasElement.width === {size[0]} && "
-                     f"viewer.canvasElement.height === {size[1]}")
-    frames = []
-    for x, y, _ in dirs:
-        browser.evaluate(f"layer.setLight([{x}, {y}], 0), 1")
-        frames.append(canvas(browser))
-    return np.stack(frames)
-
-
 @pytest.mark.skipif(not (OPENLIME_SRC / "LayerRTI.js").is_file(),
                     reason=f"OpenLIME's sources absent at {OPENLIME_SRC} (not on npm; "
                            "set LTM_OPENLIME_SRC to a checkout's src/)")
@@ -168,8 +156,8 @@ def test_openlime_draws_the_deepzoom_export(small_store, image_export, tmp_path,
             size[0], size[1], "rti", layout, f"/{folder}/info.json"))
     dirs = reference(str(small_store))[0]
     with Browser(64, 64) as browser:
-        whole = draw(browser, f"{served}/image.html", size, dirs)
-        tiled = draw(browser, f"{served}/dz.html", size, dirs)
+        whole = draw_openlime(browser, f"{served}/image.html", size, dirs)
+        tiled = draw_openlime(browser, f"{served}/dz.html", size, dirs)
     each = [psnr(a[None], b[None]) for a, b in zip(tiled, whole, strict=True)]
     print(f"OpenLIME deepzoom vs image: {np.round(each, 2)} dB, largest difference "
           f"{np.abs(tiled - whole).max()}")
