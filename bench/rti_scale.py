@@ -1,5 +1,6 @@
-"""Museum-size classic captures: ``ltm ingest-rti`` + ``ltm reconstruct`` wall time and peak
-memory against the image's size, beside earlier code and the C++ Relight fitter.
+"""Museum-size classic captures: ``ltm ingest-rti`` + ``ltm reconstruct`` wall time (to the
+relightable store and to the refined one) and peak memory against the image's size, beside
+earlier code and the C++ Relight fitter.
 
 Run: ``python bench/rti_scale.py [--data ../shared/data] [--out bench/results] [--sizes 1,4,12]
 [--lights 47] [--repeats 2] [--old TREE] [--old-sizes 1,4,12] [--relight-cli PATH]``.
@@ -8,7 +9,8 @@ Each capture is SynthRTI ``multi-obj1-material1``'s first ``--lights`` dome phot
 to ``SIZE`` megapixels (square, JPEG quality 95, in a temporary folder, never the repository):
 the content is a 320 x 320 render's, so only the time and memory are measured here, not the
 accuracy (``bench/heldout_table.py`` does that at the photographs' own size). Per size and repeat,
-as subprocesses, in turn: this code's two commands, ``--old``'s (``PYTHONPATH=TREE``, at
+as subprocesses, in turn: this code's commands (``ingest-rti``, ``reconstruct --stage classic``,
+then ``reconstruct``, the refinement), ``--old``'s (``PYTHONPATH=TREE``, at
 ``--old-sizes`` only: the old code may not fit in memory at the largest) and ``relight-cli -b
 rbf`` when it exists. Wall time and the peak resident memory of each command (its own
 ``ru_maxrss`` from ``wait4``), medians over ``--repeats``; the load average before and after.
@@ -72,13 +74,18 @@ def run(command: list[str], env: dict | None = None) -> tuple[float, float]:
 
 
 def ours(lp: Path, store: Path, env: dict | None = None) -> dict:
-    """Both commands' wall seconds and peak memory."""
+    """The commands' wall seconds and peak memory: ``ingest-rti``, ``reconstruct --stage
+    classic`` (with it, ``stage1_s``: the store relights) and ``reconstruct`` (the surface's
+    refinement; ``both_s``: the whole default)."""
     ltm = ltm_command()
     ingest = run([*ltm, "ingest-rti", str(lp), str(store), "--overwrite"], env)
-    rec = run([*ltm, "reconstruct", str(store)], env)
+    classic = run([*ltm, "reconstruct", str(store), "--stage", "classic"], env)
+    refine = run([*ltm, "reconstruct", str(store)], env)
     shutil.rmtree(store)
-    return {"ingest_rti_s": ingest[0], "reconstruct_s": rec[0], "both_s": ingest[0] + rec[0],
-            "ingest_rti_gib": ingest[1], "reconstruct_gib": rec[1]}
+    return {"ingest_rti_s": ingest[0], "classic_s": classic[0], "refine_s": refine[0],
+            "reconstruct_s": classic[0] + refine[0], "stage1_s": ingest[0] + classic[0],
+            "both_s": ingest[0] + classic[0] + refine[0], "ingest_rti_gib": ingest[1],
+            "reconstruct_gib": max(classic[1], refine[1])}
 
 
 def measure(lp: Path, tmp: Path, repeats: int, old: Path | None, relight_cli: str | None
@@ -116,6 +123,7 @@ def chart(result: dict, path: Path) -> None:
               ("relight_cli_", "relight-cli -b rbf", "0.3")]
     for prefix, label, color in series:
         for ax, keys, style, suffix in ((axes[0], ("both_s", "rbf_s"), "o-", ""),
+                                        (axes[0], ("stage1_s",), "s--", ", relightable"),
                                         (axes[1], ("reconstruct_gib", "rbf_gib"), "o-", ""),
                                         (axes[1], ("ingest_rti_gib",), "s--", ", ingest-rti")):
             values = np.array([next((sizes[s][prefix + k] for k in keys
@@ -124,7 +132,8 @@ def chart(result: dict, path: Path) -> None:
                 ax.plot(mp, values, style, color=color, label=label + suffix)
     memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     axes[1].axhline(memory, color="k", ls="--", lw=1, label=f"this machine ({memory:.0f} GiB)")
-    axes[0].set_title("ingest-rti + reconstruct, whole commands (wall)", fontsize=10)
+    axes[0].set_title("ingest-rti + reconstruct, whole commands (wall): both stages "
+                      "and the first (--stage classic)", fontsize=10)
     axes[0].set_ylabel("seconds")
     axes[1].set_title("peak resident memory of reconstruct (and of ingest-rti)", fontsize=10)
     axes[1].set_ylabel("GiB")
@@ -171,10 +180,11 @@ def main() -> None:
             old = args.old if size in old_sizes else None
             row = measure(lp, tmp, args.repeats, old, relight_cli)
             result["sizes"][size] = row
-            line = (f"{size:>5s} MP: ltm {row['both_s']:.1f} s, reconstruct peak "
+            line = (f"{size:>5s} MP: ltm {row['both_s']:.1f} s (relightable after "
+                    f"{row['stage1_s']:.1f} s), reconstruct peak "
                     f"{row['reconstruct_gib']:.2f} GiB")
             if "old_both_s" in row:
-                line += (f"; old {row['old_both_s']:.1f} s, "
+                line += (f"; old {row['old_both_s']:.1f} s ({row['old_stage1_s']:.1f} s), "
                          f"{row['old_reconstruct_gib']:.2f} GiB")
             if "relight_cli_rbf_s" in row:
                 line += (f"; relight-cli {row['relight_cli_rbf_s']:.1f} s, "

@@ -7,6 +7,7 @@ chroma ratios; :class:`Lights` holds each frame's light position and why it was 
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -366,16 +367,23 @@ def _to_half(plane: np.ndarray, out: np.ndarray) -> None:
 
 def _accumulate(ycc: np.ndarray, planes: np.ndarray, sums: np.ndarray, moments: np.ndarray,
                 valid: bool) -> tuple[float, int]:
-    """:func:`ltmstore.stages.frame_sums.accumulate` in NumPy (about 15 passes over the frame
-    where the compiled kernel makes one): for captures too short to repay loading it."""
-    planes[...] = np.moveaxis(ycc, -1, 0)
+    """:func:`ltmstore.stages.frame_sums.accumulate` for captures too short to repay loading
+    it: a frame whose every pixel is finite (a photograph's) by OpenCV, one pass per sum
+    (moments summed at OpenCV's precision, which may differ from NumPy's product in float32
+    by its last bit); one with missing pixels by NumPy, masked."""
+    cv2.split(ycc, list(planes))
+    total = float(np.sum(planes[0], dtype=np.float64))
+    if math.isfinite(total):  # a finite Y: every channel of the pixel is
+        if valid:
+            for plane, out in zip(planes, sums, strict=True):
+                cv2.accumulate(plane, out)
+            for (a, b), out in zip(MOMENTS, moments, strict=True):
+                cv2.accumulateProduct(planes[a], planes[b], out)
+        return total, planes[0].size
     missing = np.isnan(planes)
-    if not missing.any():  # a photograph's every pixel: no pass to mask them
-        total, count, values = float(np.sum(planes[0], dtype=np.float64)), planes[0].size, planes
-    else:
-        finite = ~missing[0]
-        total = float(np.sum(planes[0], where=finite, dtype=np.float64))
-        count, values = int(np.count_nonzero(finite)), np.where(missing, np.float32(0), planes)
+    finite = ~missing[0]
+    total = float(np.sum(planes[0], where=finite, dtype=np.float64))
+    count, values = int(np.count_nonzero(finite)), np.where(missing, np.float32(0), planes)
     if valid:
         sums += values
         product = np.empty_like(values[0])

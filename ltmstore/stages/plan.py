@@ -6,7 +6,7 @@ import math
 import os
 import shutil
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import psutil
@@ -20,13 +20,15 @@ METHOD_MAP = "method_map"  # (tile_y, tile_x) index into its attribute "methods"
 
 @dataclass(frozen=True)
 class TilePlan:
-    """Pixel tiles (the unit of work, one ``ltm`` shard each) and the lattice chunks (inner
-    chunks) of the store."""
+    """Pixel tiles (the unit of work) and the lattice chunks (inner chunks) of the store; each
+    ``ltm`` shard holds ``shard_tiles`` x ``shard_tiles`` tiles (one, where a tile is also the
+    unit of resumption)."""
 
     image: tuple[int, int]
     lattice: tuple[int, ...]
     tile: tuple[int, int]
     lattice_chunk: tuple[int, ...]
+    shard_tiles: int = 1
 
     @property
     def block(self) -> tuple[int, ...]:
@@ -35,9 +37,10 @@ class TilePlan:
 
     @property
     def shards(self) -> tuple[int, ...]:
-        """The block, rounded up along the lattice to whole inner chunks (Zarr requires it)."""
-        return (*self.tile, *(-(-n // c) * c for n, c in
-                              zip(self.lattice, self.lattice_chunk, strict=True)))
+        """The shard's tiles, rounded up along the lattice to whole inner chunks (Zarr
+        requires it)."""
+        return (*(t * self.shard_tiles for t in self.tile),
+                *(-(-n // c) * c for n, c in zip(self.lattice, self.lattice_chunk, strict=True)))
 
     @property
     def chunks(self) -> tuple[int, ...]:
@@ -52,22 +55,22 @@ class TilePlan:
     def n_tiles(self) -> int:
         return int(np.prod(self.grid))
 
-    def region(self, tiles: Sequence[tuple[int, int]]) -> tuple[slice, slice]:
-        """The pixel rows and columns of neighbouring ``tiles`` of one tile row."""
-        (i, first), last = tiles[0], tiles[-1][1]
-        (th, tw), (h, w) = self.tile, self.image
-        return slice(i * th, min((i + 1) * th, h)), slice(first * tw, min((last + 1) * tw, w))
-
-    def row_runs(self, max_bytes: int, min_runs: int = 1) -> list[list[tuple[int, int]]]:
-        """The tiles in runs along each tile row, each run's whole LTFs (float32) at most
-        ``max_bytes`` (at least one tile), and at least ``min_runs`` runs where there are as
-        many tiles (work for every thread): one write of a run costs Zarr's overhead of a
-        call once, not once per tile."""
-        per = max(1, min(max_bytes // (FLOAT_BYTES * math.prod(self.block)),
-                         self.n_tiles // min_runs))
+    def shard_blocks(self) -> list[tuple[tuple[slice, slice], list[tuple[int, int]]]]:
+        """Each shard's pixel rows and columns and its tiles, shard row by shard row: what one
+        Zarr write replaces whole (a partial write would read the shard back and race with
+        the write of its other tiles)."""
+        k, (th, tw), (h, w) = self.shard_tiles, self.tile, self.image
         rows, cols = self.grid
-        return [[(i, j) for j in range(start, min(start + per, cols))]
-                for i in range(rows) for start in range(0, cols, per)]
+        return [((slice(i * th, min((i + k) * th, h)), slice(j * tw, min((j + k) * tw, w))),
+                 [(a, b) for a in range(i, min(i + k, rows)) for b in range(j, min(j + k, cols))])
+                for i in range(0, rows, k) for j in range(0, cols, k)]
+
+    def with_shards(self, min_shards: int, sides: Sequence[int] = (4, 2)) -> TilePlan:
+        """The plan with the largest shards of ``sides`` tiles a side that still leave at
+        least ``min_shards`` shards (work for every thread); one tile a shard if none does."""
+        rows, cols = self.grid
+        side = next((k for k in sides if -(-rows // k) * -(-cols // k) >= min_shards), 1)
+        return replace(self, shard_tiles=side)
 
 
 def plan_tiles(image: tuple[int, int], lattice: tuple[int, ...], *, tile: int = 32,

@@ -74,9 +74,10 @@ from ltmstore.stages.plan import TilePlan, plan_tiles, write_method_map
 FAR_LATTICE = (8, 8)
 FAR_TILE = 64
 CHOICE_PIXELS = 1024  # pixels of a tile whose leave-one-out error chooses its model
-# the LTM of tiles written in one call (a run along a tile row), and the least number of runs
-# (work for both threads of a small capture's slow surface tiles)
-WRITE_BYTES, WRITE_RUNS = 16 * 2**20, 16
+# The least number of ltm shards, each written in one Zarr call (work for both threads of a
+# small capture's slow surface tiles); above it, 4 x 4 or 2 x 2 tiles a shard: at 1 MP a
+# shard a tile took 1.2 s to write, 16 tiles a shard 0.3 s (Zarr's cost of a file)
+MIN_SHARDS = 16
 # A tile leaves the image's model only when its own lowers the tile's MSE by more than this
 # fraction of the image's mean MSE (see choose_tiles).
 LEAVE_GLOBAL = 1.0
@@ -191,7 +192,8 @@ class FarFit:
         to_lattice = [m.weights(train, cells).astype(np.float32) for m in models]
         # linear, kept in float16 as stored: each tile converts and encodes its own pixels
         frames = np.asarray(group[FRAMES][:])[valid]
-        plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile or FAR_TILE, chunk_bytes=2**20)
+        plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile or FAR_TILE,
+                          chunk_bytes=2**20).with_shards(MIN_SHARDS)
         return cls(method, models, valid, train, lat, cells, loo, usable, to_lattice, frames,
                    plan, {"prepare_s": time.perf_counter() - start})
 
@@ -252,12 +254,20 @@ class FarFit:
             fitted = np.clip(fitted, 0, None)
             return srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
 
-        def write(run: list[tuple[int, int]]) -> int:  # neighbouring tiles, one Zarr write
-            ltm[self.plan.region(run)] = np.concatenate([fit(i) for i in run], axis=1)
-            return len(run)
+        def write(shard: tuple[tuple[slice, slice], list[tuple[int, int]]]) -> int:
+            (rows, cols), tiles = shard  # the shard's tiles, one Zarr write
+            block = np.empty((rows.stop - rows.start, cols.stop - cols.start, *lat.shape),
+                             np.float32)
+            (th, tw) = self.plan.tile
+            for i, j in tiles:
+                part = fit((i, j))
+                top, left = i * th - rows.start, j * tw - cols.start
+                block[top:top + part.shape[0], left:left + part.shape[1]] = part
+            ltm[rows, cols] = block
+            return len(tiles)
 
         with tqdm(total=self.plan.n_tiles, desc=desc, disable=not progress) as bar:
-            for done in pool.map(write, self.plan.row_runs(WRITE_BYTES, WRITE_RUNS)):
+            for done in pool.map(write, self.plan.shard_blocks()):
                 bar.update(done)
         group[EXPECTED_ERROR][...] = error
         group[UNSUPPORTED][...] = np.zeros(self.plan.image, bool)
@@ -276,9 +286,10 @@ class FarFit:
         st.create_variable(group, LTM, ("y", "x", *lat.dims), (*plan.image, *lat.shape),
                            chunks=plan.chunks, shards=plan.shards,
                            compressors=checksum.FAST_COMPRESSORS)
-        st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, chunks=plan.tile)
-        st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image, chunks=plan.tile,
-                           dtype=bool, fill_value=False)
+        maps = {"chunks": plan.tile, "shards": plan.shards[:2]}  # a file per shard of ltm
+        st.create_variable(group, EXPECTED_ERROR, ("y", "x"), plan.image, **maps)
+        st.create_variable(group, UNSUPPORTED, ("y", "x"), plan.image, **maps, dtype=bool,
+                           fill_value=False)
         solve_start = time.perf_counter()
         two = refines(self.method)
         with _pool() as pool:

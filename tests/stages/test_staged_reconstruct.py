@@ -20,9 +20,10 @@ from pipeline_helpers import BIN
 
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store, stages, store_summary, verify_store
+from ltmstore.core.transfer import srgb_to_linear
 from ltmstore.stages.ingest_rti import ingest_rti
 from ltmstore.stages.reconstruct import reconstruct
-from ltmstore.stages.reconstruct_far import REFINE
+from ltmstore.stages.reconstruct_far import REFINE, FarFit
 from ltmstore.stages.relight import relight
 from ltmstore.stages.surface import NORMAL, PREFIX
 
@@ -157,3 +158,20 @@ def test_check_and_relight_say_the_refinement_is_pending(store, tmp_path):
                                 "finishes it)"]
     reconstruct(store, progress=False)
     assert notes("check", store) == notes(*relit) == []
+
+
+def test_a_shard_of_several_tiles_holds_each_tile_where_it_lies(tmp_path):
+    """8 x 9 tiles of 5 px: 2 x 2 tiles a shard of ``ltm`` (each written whole, in one call),
+    and every tile's LTF the classic fit of its own pixels."""
+    lp = write_capture(tmp_path / "capture", flash(sum(RINGS.values())), shape=(40, 44))
+    ingest_rti(lp, tmp_path / "s.zarr", progress=False)
+    reconstruct(tmp_path / "s.zarr", stage="classic", tile=5, progress=False)
+    group = zarr.open_group(tmp_path / "s.zarr", mode="r")
+    fit = FarFit.prepare(group, lattice=None, method="auto", tile=5)
+    assert fit.plan.shard_tiles == 2 and group["ltm"].shards == (10, 10, 8, 8)
+    chosen, ltm = group["method_map"][...], group["ltm"][...]
+    for index in np.ndindex(fit.plan.grid):
+        rows, cols, values = fit.pixels(index)
+        lattice = np.clip(fit.to_lattice[chosen[index]] @ values, 0, None)
+        np.testing.assert_array_equal(ltm[rows, cols],
+                                      srgb_to_linear(lattice).T.reshape(5, -1, 8, 8))
