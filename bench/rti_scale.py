@@ -132,8 +132,8 @@ def chart(result: dict, path: Path) -> None:
                 ax.plot(mp, values, style, color=color, label=label + suffix)
     memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     axes[1].axhline(memory, color="k", ls="--", lw=1, label=f"this machine ({memory:.0f} GiB)")
-    axes[0].set_title("ingest-rti + reconstruct, whole commands (wall): both stages "
-                      "and the first (--stage classic)", fontsize=10)
+    axes[0].set_title("ingest-rti + reconstruct (wall): both stages,\n"
+                      "and relightable (--stage classic)", fontsize=10)
     axes[0].set_ylabel("seconds")
     axes[1].set_title("peak resident memory of reconstruct (and of ingest-rti)", fontsize=10)
     axes[1].set_ylabel("GiB")
