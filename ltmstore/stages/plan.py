@@ -55,15 +55,25 @@ class TilePlan:
     def n_tiles(self) -> int:
         return int(np.prod(self.grid))
 
+    def tile_region(self, index: tuple[int, int]) -> tuple[slice, slice]:
+        """The pixel rows and columns of the tile at ``index`` (clipped to the image)."""
+        return tuple(slice(i * t, min((i + 1) * t, n))
+                     for i, t, n in zip(index, self.tile, self.image, strict=True))
+
     def shard_blocks(self) -> list[tuple[tuple[slice, slice], list[tuple[int, int]]]]:
         """Each shard's pixel rows and columns and its tiles, shard row by shard row: what one
         Zarr write replaces whole (a partial write would read the shard back and race with
         the write of its other tiles)."""
-        k, (th, tw), (h, w) = self.shard_tiles, self.tile, self.image
-        rows, cols = self.grid
-        return [((slice(i * th, min((i + k) * th, h)), slice(j * tw, min((j + k) * tw, w))),
-                 [(a, b) for a in range(i, min(i + k, rows)) for b in range(j, min(j + k, cols))])
-                for i in range(0, rows, k) for j in range(0, cols, k)]
+        k, (rows, cols) = self.shard_tiles, self.grid
+        blocks = []
+        for i in range(0, rows, k):
+            for j in range(0, cols, k):
+                tiles = [(a, b) for a in range(i, min(i + k, rows))
+                         for b in range(j, min(j + k, cols))]
+                (top, left), (bottom, right) = (self.tile_region(t) for t in (tiles[0], tiles[-1]))
+                blocks.append(((slice(top.start, bottom.stop), slice(left.start, right.stop)),
+                               tiles))
+        return blocks
 
     def with_shards(self, min_shards: int, sides: Sequence[int] = (4, 2)) -> TilePlan:
         """The plan with the largest shards of ``sides`` tiles a side that still leave at

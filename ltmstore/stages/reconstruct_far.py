@@ -202,11 +202,10 @@ class FarFit:
         """The tile's rows, columns and sRGB-encoded values ``(lights, pixels)`` (the frames
         divided by their exposures ``gain``); for the ``choice``, every k-th pixel only
         (:data:`CHOICE_PIXELS` of them)."""
-        plan = self.plan
-        rows, cols = (slice(i * t, min((i + 1) * t, n)) for i, t, n in
-                      zip(index, plan.tile, plan.image, strict=True))
+        rows, cols = self.plan.tile_region(index)
         values = self.frames[:, rows, cols].reshape(len(self.frames), -1)
-        values = values / (np.ones(len(values), np.float32) if gain is None else gain)[:, None]
+        values = (values.astype(np.float32) if gain is None  # float16 to float32: exact
+                  else values / gain[:, None])
         if choice:
             values = values[:, :: max(1, values.shape[1] // CHOICE_PIXELS)]
         return rows, cols, linear_to_srgb(values)
@@ -258,11 +257,10 @@ class FarFit:
             (rows, cols), tiles = shard  # the shard's tiles, one Zarr write
             block = np.empty((rows.stop - rows.start, cols.stop - cols.start, *lat.shape),
                              np.float32)
-            (th, tw) = self.plan.tile
-            for i, j in tiles:
-                part = fit((i, j))
-                top, left = i * th - rows.start, j * tw - cols.start
-                block[top:top + part.shape[0], left:left + part.shape[1]] = part
+            for index in tiles:
+                r, c = self.plan.tile_region(index)
+                block[r.start - rows.start:r.stop - rows.start,
+                      c.start - cols.start:c.stop - cols.start] = fit(index)
             ltm[rows, cols] = block
             return len(tiles)
 
