@@ -482,8 +482,37 @@ def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.n
 
 
 def render_colour(theta: np.ndarray, lights: Lights) -> np.ndarray:
-    """Linear RGB ``(n, M, 3)`` of per-channel parameters ``theta (n, 3, 6)`` at ``lights``."""
-    return np.stack([_model(theta[:, c], lights) for c in range(3)], axis=-1)
+    """Linear values ``(n, M, C)`` of per-channel parameters ``theta (n, C, 6)`` (RGB: ``C =
+    3``) at ``lights``; far lights through the compiled :func:`_far_render`."""
+    if COMPILED and lights.far and len(theta) and lights.g.dtype == np.float32:
+        return _far_render(theta, lights)
+    return np.stack([_model(theta[:, c], lights) for c in range(theta.shape[1])], axis=-1)
+
+
+def _far_render(theta: np.ndarray, lights: Lights) -> np.ndarray:
+    """:func:`render_colour` at far lights through :func:`ltmstore.solve.physical_far.render`
+    (the same values, GGX's bit for bit, without NumPy's ``(n, M)`` temporaries: a 24 MP
+    relight evaluates the model at every pixel and photograph's light)."""
+    from ltmstore.solve import physical_far
+
+    out = np.empty((len(theta), lights.g.shape[1], theta.shape[1]), dtype=np.float32)
+    physical_far.render(*far_parameters(theta), *far_directions(lights), lights.g,
+                        lights.lobe == "beckmann", out)
+    return out
+
+
+def far_parameters(theta: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The compiled far-light kernels' parameters (:mod:`ltmstore.solve.physical_far`) of
+    ``theta (n, C, 6)``: ``p``, ``q``, ``a2 = alpha^2`` ``(n, C)`` and ``rho, k, a`` ``(n, C,
+    3)``, float32 (``a2`` by NumPy's ``exp``, as :func:`_model`)."""
+    params = np.asarray(theta, dtype=np.float32)
+    return (np.ascontiguousarray(params[..., 0]), np.ascontiguousarray(params[..., 1]),
+            np.exp(2 * params[..., 4]), np.ascontiguousarray(params[..., [2, 3, 5]]))
+
+
+def far_directions(lights: Lights) -> tuple[np.ndarray, np.ndarray]:
+    """``toward`` and ``half`` ``(3, M)`` of :func:`far_lights` (the same for every pixel)."""
+    return (np.ascontiguousarray(lights.toward[:, 0]), np.ascontiguousarray(lights.half[:, 0]))
 
 
 def fit_surface(samples: np.ndarray, geometry: Geometry, *, led_exponent: float | None = None,

@@ -243,6 +243,102 @@ def levenberg_marquardt(theta, toward, half, y, w, beckmann, n_iter,
     return costs
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def render(p, q, a2, linear, toward, half, gain, beckmann, out):  # pragma: no cover - compiled
+    """The model of pixels ``(n,)`` at far lights ``toward``, ``half (3, M)`` (float32), into
+    ``out (n, M, C)`` (float32): per channel ``c`` the slopes ``p``, ``q``, the roughness
+    ``a2 = alpha^2`` ``(n, C)`` and ``rho, k, a = linear (n, C, 3)``, the lights' gain ``(n,
+    M)`` (their shadows; ones for none), the lobe GGX or ``beckmann``. The same float32
+    operations in the same order as :func:`ltmstore.solve.physical._model` (GGX's values equal
+    NumPy's bit for bit; Beckmann's ``exp`` may differ in its last bit), without its ``(n, M)``
+    temporaries; a channel of the same geometry as the one before reuses its shading."""
+    cos = np.empty(toward.shape[1], np.float32)
+    lobe = np.empty(toward.shape[1], np.float32)
+    for i in range(len(p)):
+        for c in range(p.shape[1]):
+            if c == 0 or p[i, c] != p[i, c - 1] or q[i, c] != q[i, c - 1] or (
+                    a2[i, c] != a2[i, c - 1]):
+                _shading(p[i, c], q[i, c], a2[i, c], toward, half, beckmann, cos, lobe)
+            rho, k, floor = linear[i, c, 0], linear[i, c, 1], linear[i, c, 2]
+            for m in range(toward.shape[1]):
+                out[i, m, c] = gain[i, m] * (rho * cos[m] + k * lobe[m]) + floor
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _shading(p, q, a2, toward, half, beckmann, cos, lobe):  # pragma: no cover - compiled
+    """``max(n.l, 0)`` and ``D(n.H) / (4 n.v)`` of one geometry at every light, into ``cos``
+    and ``lobe (M,)``, as :func:`ltmstore.solve.physical._model` computes them."""
+    f0, f1, pi, four = np.float32(0.0), np.float32(1.0), np.float32(np.pi), np.float32(4.0)
+    norm = np.sqrt(f1 + p * p + q * q)
+    quarter = norm / four
+    for m in range(toward.shape[1]):
+        ndotl = (toward[2, m] - p * toward[0, m] - q * toward[1, m]) / norm
+        ndoth = (half[2, m] - p * half[0, m] - q * half[1, m]) / norm
+        if ndoth < f0:  # np.clip's: NaN stays NaN
+            ndoth = f0
+        elif ndoth > f1:
+            ndoth = f1
+        cos[m] = ndotl if ndotl > f0 else f0
+        if beckmann:
+            dist = _beckmann(ndoth, a2)[0]
+        else:
+            inv_u = f1 / (ndoth * ndoth * (a2 - f1) + f1)
+            dist = a2 / pi * inv_u * inv_u
+        lobe[m] = dist * quarter
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def blend(frames, frame_weights, p, q, a2, linear, train, train_half, train_gain, model_weights,
+          query, query_half, query_gain, weight, beckmann, out):  # pragma: no cover - compiled
+    """A blend's encoded image at the lights ``query`` of pixels ``(P,)``, into ``out (d, P,
+    C)`` (float32): ``frame_weights (d, n) @ frames (n, P, C) + model_weights (d, n) @ srgb(M(
+    train)) + weight srgb(M(query))``, its sums in float64 pixel by pixel (the same in every
+    block), the model ``M`` of :func:`render` (its arguments alike; ``train``, ``query``: the
+    lights' ``toward``, with ``train_half``, ``query_half``; a gain of shape ``(0, 0)``: no
+    shadows) clipped at 0 and sRGB-encoded as :func:`ltmstore.core.transfer.linear_to_srgb`.
+    Neither the model's images at the photographs' lights nor their float64 copies are held."""
+    n, d = train.shape[1], query.shape[1]
+    cos_t, lobe_t = np.empty(n, np.float32), np.empty(n, np.float32)
+    cos_q, lobe_q = np.empty(d, np.float32), np.empty(d, np.float32)
+    total = np.empty(d)
+    weight = np.float32(weight)
+    for i in range(len(p)):
+        for c in range(p.shape[1]):
+            if c == 0 or p[i, c] != p[i, c - 1] or q[i, c] != q[i, c - 1] or (
+                    a2[i, c] != a2[i, c - 1]):
+                _shading(p[i, c], q[i, c], a2[i, c], train, train_half, beckmann, cos_t,
+                         lobe_t)
+                _shading(p[i, c], q[i, c], a2[i, c], query, query_half, beckmann, cos_q,
+                         lobe_q)
+            rho, k, floor = linear[i, c, 0], linear[i, c, 1], linear[i, c, 2]
+            total[:] = 0.0
+            for m in range(n):
+                shade = rho * cos_t[m] + k * lobe_t[m]
+                if train_gain.shape[0]:
+                    shade *= train_gain[i, m]
+                model = _encode(shade + floor)
+                frame = frames[m, i, c]
+                for j in range(d):
+                    total[j] += frame_weights[j, m] * frame + model_weights[j, m] * model
+            for j in range(d):
+                shade = rho * cos_q[j] + k * lobe_q[j]
+                if query_gain.shape[0]:
+                    shade *= query_gain[i, j]
+                out[j, i, c] = np.float32(total[j]) + weight * _encode(shade + floor)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _encode(v):  # pragma: no cover - compiled
+    """:func:`ltmstore.core.transfer.linear_to_srgb` of one float32 value (NaN stays NaN)."""
+    if v < np.float32(0.0):
+        v = np.float32(0.0)
+    elif v > np.float32(1.0):
+        v = np.float32(1.0)
+    if v <= np.float32(0.0031308):
+        return v * np.float32(12.92)
+    return v ** np.float32(1 / 2.4) * np.float32(1.055) - np.float32(0.055)
+
+
 def warm_up() -> None:
     """Load the compiled kernels (from Numba's cache, or compile them) with a fit of one pixel,
     so that the first real fit finds them ready; :mod:`ltmstore.stages.reconstruct_far` calls

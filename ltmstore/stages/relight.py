@@ -640,14 +640,9 @@ class _FarOperator:
             return _weighted_sum(self.weights, frames)
         blend = self.model
         at, to = (None, None) if visible is None else (v[pixels] for v in visible)
-        theta = surface.surface_theta(*values)
-        color = frames.ndim == 3
-        at_train = surface.model_encoded(theta, self.train, color=color, lobe=blend.lobe,
-                                         visible=at)
-        query = surface.model_encoded(theta, self.dirs, color=color, lobe=blend.lobe,
-                                      visible=to)
-        return (_weighted_sum(self.weights, np.concatenate([frames, at_train]))
-                + np.float32(blend.weight) * query)
+        return surface.blend_encoded(frames, self.weights, surface.surface_theta(*values),
+                                     self.train, self.dirs, blend.weight, lobe=blend.lobe,
+                                     visible=(at, to))
 
 
 def _weighted_sum(weights: np.ndarray, values: np.ndarray) -> np.ndarray:

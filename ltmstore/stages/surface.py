@@ -277,20 +277,50 @@ def model_encoded(theta: np.ndarray, directions: np.ndarray, *, color: bool,
         # the model is linear in albedo, lobe strength and floor, and the channels share the
         # normal and roughness: the luminance is the model of the luminance's parameters (one
         # render instead of three; equal to float32 rounding)
-        n = len(theta)
-        luma = np.zeros((-(-n // 3) * 3, 6))
-        luma[:n] = theta[:, 0]
-        luma[:n, LINEAR] = np.einsum("c,pck->pk", LUMA, theta[:, :, LINEAR])
-        # far lights are the same for every pixel: three pixels' luminance parameters go in as
-        # one pixel's three channels of render_colour
-        packed = physical.render_colour(luma.reshape(-1, 3, 6),
-                                        physical.far_lights(directions, len(luma) // 3, lobe))
-        linear = np.moveaxis(packed, 2, 1).reshape(len(luma), -1)[:n]  # (p, d)
-        return linear_to_srgb(linear.T.clip(min=0))
+        luma = _luminance_theta(theta)
+        linear = physical.render_colour(luma, physical.far_lights(directions, len(luma), lobe))
+        return linear_to_srgb(linear[..., 0].T.clip(min=0))
     rgb = physical.render_colour(theta, physical.far_lights(directions, len(theta), lobe,
                                                             visible))
     linear = np.moveaxis(rgb if color else rgb @ LUMA, 1, 0).clip(min=0)
     return linear_to_srgb(linear.astype(np.float32))
+
+
+def blend_encoded(frames: np.ndarray, weights: np.ndarray, theta: np.ndarray,
+                  train: np.ndarray, query: np.ndarray, weight: float, *, lobe: str = "ggx",
+                  visible: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+                  ) -> np.ndarray:
+    """A blend's encoded images ``(q, p[, 3])`` at ``query (q, 3)``: ``weights (q, 2n)``
+    applied to the encoded ``frames (n, p[, 3])`` at ``train (n, 3)`` and to
+    ``srgb(M(train))``, plus ``weight srgb(M(query))``, of the model's ``theta (p, 3, 6)``
+    (the channels sharing their geometry; luminance: the model of the luminance's parameters,
+    as :func:`model_encoded`); ``visible``: the shadows ``(p, n)`` at ``train`` and ``(p, q)``
+    at ``query`` (None: none). One compiled pass per pixel
+    (:func:`ltmstore.solve.physical_far.blend`), its sums in float64."""
+    from ltmstore.solve import physical_far
+
+    color = frames.ndim == 3
+    if not color:
+        theta = _luminance_theta(theta)
+    n, none = len(train), np.empty((0, 0), np.float32)
+    gains = [none if v is None else np.ascontiguousarray(v, dtype=np.float32) for v in visible]
+    out = np.empty((len(query), *frames.shape[1:2], theta.shape[1]), np.float32)
+    physical_far.blend(
+        np.ascontiguousarray(frames, dtype=np.float32).reshape(n, -1, theta.shape[1]),
+        np.ascontiguousarray(weights[:, :n]), *physical.far_parameters(theta),
+        *physical.far_directions(physical.far_lights(train, 1, lobe)), gains[0],
+        np.ascontiguousarray(weights[:, n:]),
+        *physical.far_directions(physical.far_lights(query, 1, lobe)), gains[1], weight,
+        lobe == "beckmann", out)
+    return out if color else out[..., 0]
+
+
+def _luminance_theta(theta: np.ndarray) -> np.ndarray:
+    """``(p, 1, 6)``: the luminance's parameters of ``theta (p, 3, 6)``, whose channels share
+    their normal and roughness (the model is linear in albedo, lobe strength and floor)."""
+    luma = theta[:, :1].copy()
+    luma[:, 0, LINEAR] = np.einsum("c,pck->pk", LUMA, theta[:, :, LINEAR])
+    return luma
 
 
 def _shared_geometry(theta: np.ndarray) -> bool:
