@@ -73,6 +73,7 @@ RECORDED_BY = {**STAGE_VARIABLES, "compact": STAGE_VARIABLES["reconstruct"],
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
 LTM_VARIABLES = ("ltm", "ltm_cb", "ltm_cr", "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light")
 SAMPLE_VARIABLES = (SAMPLES, *CHROMA_SAMPLES.values())
+FRAMES_PER_TASK = 32  # open_store's Dask chunks hold at least this many frames (_frame_chunks)
 
 
 def _now() -> str:
@@ -476,7 +477,8 @@ def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dic
 
 
 def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
-    """Open a store as a lazy :class:`xarray.Dataset`, one Dask chunk per inner Zarr chunk.
+    """Open a store as a lazy :class:`xarray.Dataset`, one Dask chunk per inner Zarr chunk
+    (the frames': per :data:`FRAMES_PER_TASK` frames at least, :func:`_frame_chunks`).
 
     Variables stored as float16 (the frames and samples always, a lossy reconstruction's LTM)
     come back as float32, so that reductions over them (a mean) accumulate in float32; those stored
@@ -500,7 +502,7 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
             warnings.warn(f"store {str(path)!r} {checksum.NO_CHECKSUMS}", NoChecksumWarning,
                           stacklevel=2)
     ds = xr.open_zarr(path if isinstance(path, Store) else str(path), consolidated=False,
-                      chunks={}, decode_cf=False)
+                      chunks=_frame_chunks(group), decode_cf=False)
     incomplete = {
         name
         for stage, entry in stages(group).items()
@@ -520,6 +522,17 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     ds.attrs = {k: v for k, v in group.attrs.asdict().items() if k != integrity.WRITTEN}
     ds.encoding["source"] = path  # where readers of the stored factors find them
     return ds
+
+
+def _frame_chunks(group: zarr.Group) -> dict[str, int]:
+    """Dask chunks of ``open_store`` where they differ from the Zarr chunks: at least
+    :data:`FRAMES_PER_TASK` frames a task along ``t`` (a whole number of stored chunks). A 24 MP
+    classic capture stores one photograph a chunk (``ingest-rti``'s memory): one task per
+    chunk was 345,000 tasks to relight it, whose scheduling took longer than the relighting."""
+    frames = group.get(integrity.FRAME_VARIABLES[0])
+    if frames is None or frames.chunks[0] >= FRAMES_PER_TASK:
+        return {}
+    return {"t": frames.chunks[0] * (FRAMES_PER_TASK // frames.chunks[0])}
 
 
 def _derive_factored(ds: xr.Dataset, group: zarr.Group) -> xr.Dataset:

@@ -291,12 +291,13 @@ def _shading(p, q, a2, toward, half, beckmann, cos, lobe):  # pragma: no cover -
 def blend(frames, frame_weights, p, q, a2, linear, train, train_half, train_gain, model_weights,
           query, query_half, query_gain, weight, beckmann, out):  # pragma: no cover - compiled
     """A blend's encoded image at the lights ``query`` of pixels ``(P,)``, into ``out (d, P,
-    C)`` (float32): ``frame_weights (d, n) @ frames (n, P, C) + model_weights (d, n) @ srgb(M(
-    train)) + weight srgb(M(query))``, its sums in float64 pixel by pixel (the same in every
-    block), the model ``M`` of :func:`render` (its arguments alike; ``train``, ``query``: the
-    lights' ``toward``, with ``train_half``, ``query_half``; a gain of shape ``(0, 0)``: no
-    shadows) clipped at 0 and sRGB-encoded as :func:`ltmstore.core.transfer.linear_to_srgb`.
-    Neither the model's images at the photographs' lights nor their float64 copies are held."""
+    C)`` (float32): ``frame_weights.T @ frames (n, P, C) + model_weights.T @ srgb(M(train)) +
+    weight srgb(M(query))`` (the weights ``(n, d)``, float64), its sums in float64 pixel by
+    pixel (the same in every block), the model ``M`` of :func:`render` (its arguments alike;
+    ``train``, ``query``: the lights' ``toward``, with ``train_half``, ``query_half``; a gain
+    of shape ``(0, 0)``: no shadows) clipped at 0 and sRGB-encoded as
+    :func:`ltmstore.core.transfer.linear_to_srgb`. Neither the model's images at the
+    photographs' lights nor their float64 copies are held."""
     n, d = train.shape[1], query.shape[1]
     cos_t, lobe_t = np.empty(n, np.float32), np.empty(n, np.float32)
     cos_q, lobe_q = np.empty(d, np.float32), np.empty(d, np.float32)
@@ -319,7 +320,7 @@ def blend(frames, frame_weights, p, q, a2, linear, train, train_half, train_gain
                 model = _encode(shade + floor)
                 frame = frames[m, i, c]
                 for j in range(d):
-                    total[j] += frame_weights[j, m] * frame + model_weights[j, m] * model
+                    total[j] += frame_weights[m, j] * frame + model_weights[m, j] * model
             for j in range(d):
                 shade = rho * cos_q[j] + k * lobe_q[j]
                 if query_gain.shape[0]:

@@ -94,8 +94,9 @@ FAR_FROM_DATA_DEG = 25.0  # a light further than this from every observed one ge
 # chunks in flight the most of the rest), of 2**22 no less (relight(...).values' peak RSS;
 # the command's: bench/relight_memory.py).
 BAND_BYTES = 2**24
-# Relit images are computed and encoded (encoded_images) in bands of rows of at most this many
-# pixels: a whole 24 MP image at once peaked at 3.0 GiB for one light (bench/relight_memory.py).
+# Relit images at ``auto`` exposure are encoded (encoded_images) in bands of rows of at most this
+# many pixels: a whole 24 MP image at once peaked at 3.0 GiB for one light
+# (bench/relight_memory.py).
 ENCODE_BAND_PIXELS = 2**20
 
 
@@ -729,8 +730,8 @@ def write_gif(store, path: str | os.PathLike, lights, views=None, *, fps: float 
 def encoded_images(images: xr.DataArray, transfer: str, *, exposure: str = CAPTURE,
                    ev: float = 0.0, depth: int | str = 8) -> Iterator[np.ndarray]:
     """Each light's image of ``images`` encoded as
-    :func:`ltmstore.core.transfer.encode_images` encodes them all (the same values), computed a
-    band of rows at a time.
+    :func:`ltmstore.core.transfer.encode_images` encodes them all (the same values), each
+    block of ``images`` computed once and encoded as it comes.
 
     Parameters
     ----------
@@ -747,45 +748,50 @@ def encoded_images(images: xr.DataArray, transfer: str, *, exposure: str = CAPTU
     ------
     numpy.ndarray
         One light's code values ``(y, x[, color])``, light by light. Every light's code
-        values are held, and at the capture's exposure one band's linear values beside them
-        (every light of a band computed at once: the frames are read once); ``auto`` holds
+        values are held, and at the capture's exposure the linear values of the blocks being
+        computed (every light of a block at once: the frames are read once); ``auto`` holds
         every light's linear values (float32), its gain being their 99.5th percentile.
     """
     exposure, _ = check_exposure(exposure, ev)
     depth = check_depth(depth)
     images = images.transpose(LIGHT, "y", ...)
-    bands = _bands(images)
+    codes = np.empty(images.shape, encode(np.zeros(1, np.float32), transfer, depth).dtype)
     if exposure == AUTO:  # its gain is every light's percentile: their values first
         linear = np.empty(images.shape, np.float32)
-        for rows in bands:
-            linear[:, rows] = images[:, rows].values
-        gain = np.float32(exposure_gain(linear, exposure, ev))
-        values = lambda rows: linear[:, rows]  # noqa: E731
+        _compute_into(images, linear)
+        encoding = _Encoding(codes, np.float32(exposure_gain(linear, exposure, ev)), transfer,
+                             depth)
+        rows = max(1, ENCODE_BAND_PIXELS // max(images.sizes["x"], 1))
+        for start in range(0, images.sizes["y"], rows):  # bounded temporaries
+            band = (slice(None), slice(start, start + rows))
+            encoding[band] = linear[band]
     else:
-        gain = np.float32(exposure_gain(np.empty(0), exposure, ev))
-        values = lambda rows: images[:, rows].values  # noqa: E731
-    codes = None
-    for rows in bands:  # every light of a band at once: the frames are read once
-        code = encode(np.asarray(values(rows)) * gain, transfer, depth)
-        if codes is None:
-            codes = np.empty(images.shape, code.dtype)
-        codes[:, rows] = code
+        _compute_into(images, _Encoding(codes, np.float32(exposure_gain(np.empty(0), exposure,
+                                                                        ev)), transfer, depth))
     yield from codes
 
 
-def _bands(images: xr.DataArray) -> list[slice]:
-    """Bands of rows of ``images`` ``(light, y, x, ...)`` of at most
-    :data:`ENCODE_BAND_PIXELS` pixels, of whole row chunks where a chunk is smaller."""
-    chunks = images.chunks[1] if images.chunks else (images.sizes["y"],)
-    most = max(1, ENCODE_BAND_PIXELS // max(images.sizes["x"], 1))
-    bands, start, stop = [], 0, 0
-    for rows in chunks:
-        if stop > start and stop + rows - start > most:
-            bands.append(slice(start, stop))
-            start = stop
-        stop += rows
-        while stop - start > most:  # a chunk taller than a band
-            bands.append(slice(start, start + most))
-            start += most
-    return [*bands, slice(start, stop)] if stop > start else bands
+@dataclass(frozen=True)
+class _Encoding:
+    """A target of :func:`dask.array.store`: each block of linear light ``(light, y, x, ...)``
+    written to ``codes`` as :func:`~ltmstore.core.transfer.encode` of it times ``gain``."""
+
+    codes: np.ndarray
+    gain: np.float32
+    transfer: str
+    depth: int | str
+
+    def __setitem__(self, key: tuple[slice, ...], linear: np.ndarray) -> None:
+        self.codes[key] = encode(np.asarray(linear) * self.gain, self.transfer, self.depth)
+
+
+def _compute_into(images: xr.DataArray, target) -> None:
+    """``images``' values written to ``target[key]`` block by block as they are computed, one
+    graph on this process's threads (a block is computed once: bands of rows that split a
+    block had computed it again for each, twice at 24 MP; a distributed client's workers
+    would fill copies of ``target``)."""
+    if images.chunks is None:
+        target[(slice(None),) * images.ndim] = images.values
+    else:
+        da.store(images.data, target, lock=False, scheduler="threads")
 

@@ -307,9 +307,9 @@ def blend_encoded(frames: np.ndarray, weights: np.ndarray, theta: np.ndarray,
     out = np.empty((len(query), *frames.shape[1:2], theta.shape[1]), np.float32)
     physical_far.blend(
         np.ascontiguousarray(frames, dtype=np.float32).reshape(n, -1, theta.shape[1]),
-        np.ascontiguousarray(weights[:, :n]), *physical.far_parameters(theta),
+        np.ascontiguousarray(weights[:, :n].T), *physical.far_parameters(theta),
         *physical.far_directions(physical.far_lights(train, 1, lobe)), gains[0],
-        np.ascontiguousarray(weights[:, n:]),
+        np.ascontiguousarray(weights[:, n:].T),
         *physical.far_directions(physical.far_lights(query, 1, lobe)), gains[1], weight,
         lobe == "beckmann", out)
     return out if color else out[..., 0]

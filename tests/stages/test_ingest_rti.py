@@ -139,7 +139,10 @@ def test_ingest_rti(lp, tmp_path):
     np.testing.assert_allclose(ds.frames.mean(("y", "x")), gains(n) * luma, rtol=0.02)
     ratio = [(COLOUR[2] - luma) / 1.772 / luma, (COLOUR[0] - luma) / 1.402 / luma]
     np.testing.assert_allclose(ds.chroma.values, np.broadcast_to(ratio, (6, 5, 2)), atol=0.01)
-    acq = open_store(store).attrs["acquisition"]
+    opened = open_store(store)
+    assert ds.frames.data.chunks[0][0] == 4  # 4 frames a stored chunk, all of them a task:
+    assert opened.frames.data.chunks[0] == opened.frame_chroma.data.chunks[1] == (n,)
+    acq = opened.attrs["acquisition"]
     assert acq["source"] == "rti" and acq["lp"] == "dirs.lp" and acq["light_kind"] == "far"
     assert acq["lp_path"] == str(lp.resolve())
     assert acq["coordinates"]["r"]["units"] == "1"

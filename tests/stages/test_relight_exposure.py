@@ -276,21 +276,32 @@ def test_help_says_which_exposure_and_bad_values_are_one_line_errors(small_store
         assert not (tmp_path / "x.png").exists()
 
 
-def test_images_computed_by_bands_are_the_whole_images(heldout, monkeypatch):
-    """``encoded_images`` computes and encodes a band of rows at a time (what bounds ``ltm
-    relight``'s memory at 24 MP): the same code values as the whole images encoded at once, at
-    the capture's exposure and at ``auto`` (one gain from every light's values)."""
+def test_images_are_encoded_block_by_block_each_computed_once(heldout, monkeypatch):
+    """``encoded_images`` encodes each block of the relit images as it is computed, each
+    block once (bands of rows that split a block had computed it again for each, twice at 24
+    MP): the same code values as the whole images encoded at once, at the capture's exposure
+    and at ``auto`` (one gain from every light's values, encoded in bands of rows)."""
     from ltmstore.core.transfer import encode_images
     from ltmstore.stages import relight as relight_module
 
     directions = [light["direction"] for light in heldout["hidden"][:2]]
-    images = relight(open_store(heldout["store"]), directions=directions)
+    images = relight(open_store(heldout["store"]), directions=directions).chunk(y=5)
+    calls = []
+
+    def counted(block: np.ndarray) -> np.ndarray:
+        calls.append(block.shape)
+        return block
+
+    counting = images.copy(data=images.data.map_blocks(counted, dtype=images.dtype))
+    # bands of 3 rows (auto's encoding), blocks of 5
     monkeypatch.setattr(relight_module, "ENCODE_BAND_PIXELS", 3 * images.sizes["x"])
-    assert len(relight_module._bands(images)) > 3  # several bands of whole row chunks
     whole = images.values
     for exposure, ev in (("capture", 0.0), ("auto", 0.5), ("capture", 1.0)):
-        banded = list(relight_module.encoded_images(images, "srgb", exposure=exposure, ev=ev))
-        np.testing.assert_array_equal(np.stack(banded),
+        calls.clear()
+        encoded = list(relight_module.encoded_images(counting, "srgb", exposure=exposure,
+                                                     ev=ev))
+        assert len(calls) == np.prod(images.data.numblocks), (exposure, len(calls))
+        np.testing.assert_array_equal(np.stack(encoded),
                                       encode_images(whole, "srgb", exposure=exposure, ev=ev))
 
 
