@@ -73,7 +73,7 @@ RECORDED_BY = {**STAGE_VARIABLES, "compact": STAGE_VARIABLES["reconstruct"],
 # ``ltm reconstruct --precision float16``, always opened as float32 by :func:`open_store`.
 LTM_VARIABLES = ("ltm", "ltm_cb", "ltm_cr", "ltm_by_light", "ltm_cb_by_light", "ltm_cr_by_light")
 SAMPLE_VARIABLES = (SAMPLES, *CHROMA_SAMPLES.values())
-FRAMES_PER_TASK = 32  # open_store's Dask chunks hold at least this many frames (_frame_chunks)
+FRAMES_PER_TASK = 32  # open_store's Dask chunks hold at least this many frames
 
 
 def _now() -> str:
@@ -478,7 +478,7 @@ def require_stage(group: zarr.Group, stage: str, path: str | os.PathLike) -> dic
 
 def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     """Open a store as a lazy :class:`xarray.Dataset`, one Dask chunk per inner Zarr chunk
-    (the frames': per :data:`FRAMES_PER_TASK` frames at least, :func:`_frame_chunks`).
+    (the frames': :data:`FRAMES_PER_TASK` frames at least, :func:`_frames_per_task`).
 
     Variables stored as float16 (the frames and samples always, a lossy reconstruction's LTM)
     come back as float32, so that reductions over them (a mean) accumulate in float32; those stored
@@ -501,8 +501,9 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
         if not checksummed(Path(path)):
             warnings.warn(f"store {str(path)!r} {checksum.NO_CHECKSUMS}", NoChecksumWarning,
                           stacklevel=2)
-    ds = xr.open_zarr(path if isinstance(path, Store) else str(path), consolidated=False,
-                      chunks=_frame_chunks(group), decode_cf=False)
+    source = path if isinstance(path, Store) else str(path)
+    ds = _frames_per_task(xr.open_zarr(source, consolidated=False, chunks={}, decode_cf=False),
+                          source, group)
     incomplete = {
         name
         for stage, entry in stages(group).items()
@@ -524,15 +525,21 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
     return ds
 
 
-def _frame_chunks(group: zarr.Group) -> dict[str, int]:
-    """Dask chunks of ``open_store`` where they differ from the Zarr chunks: at least
-    :data:`FRAMES_PER_TASK` frames a task along ``t`` (a whole number of stored chunks). A 24 MP
+def _frames_per_task(ds: xr.Dataset, source: str | Store, group: zarr.Group) -> xr.Dataset:
+    """``ds`` with its frames read at least :data:`FRAMES_PER_TASK` frames a Dask task along
+    ``t`` (a whole number of stored chunks; the other variables one task per chunk). A 24 MP
     classic capture stores one photograph a chunk (``ingest-rti``'s memory): one task per
     chunk was 345,000 tasks to relight it, whose scheduling took longer than the relighting."""
+    import xarray as xr
+
     frames = group.get(integrity.FRAME_VARIABLES[0])
     if frames is None or frames.chunks[0] >= FRAMES_PER_TASK:
-        return {}
-    return {"t": frames.chunks[0] * (FRAMES_PER_TASK // frames.chunks[0])}
+        return ds
+    names = [name for name in integrity.FRAME_VARIABLES if name in ds]
+    merged = xr.open_zarr(source, consolidated=False, decode_cf=False,
+                          chunks={"t": frames.chunks[0] * (FRAMES_PER_TASK // frames.chunks[0])},
+                          drop_variables=[n for n in ds.data_vars if n not in names])
+    return ds.assign({name: merged[name] for name in names})
 
 
 def _derive_factored(ds: xr.Dataset, group: zarr.Group) -> xr.Dataset:
