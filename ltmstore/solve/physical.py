@@ -481,10 +481,11 @@ def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.n
                      for c in range(3)], axis=1)
 
 
-def render_colour(theta: np.ndarray, lights: Lights) -> np.ndarray:
+def render_colour(theta: np.ndarray, lights: Lights, *, compiled: bool = True) -> np.ndarray:
     """Linear values ``(n, M, C)`` of per-channel parameters ``theta (n, C, 6)`` (RGB: ``C =
-    3``) at ``lights``; far lights through the compiled :func:`_far_render`."""
-    if COMPILED and lights.far and len(theta) and lights.g.dtype == np.float32:
+    3``) at ``lights``; far lights through the compiled :func:`_far_render` (unless
+    ``compiled`` or :data:`COMPILED` is off: NumPy's, which needs no Numba)."""
+    if compiled and COMPILED and lights.far and len(theta) and lights.g.dtype == np.float32:
         return _far_render(theta, lights)
     return np.stack([_model(theta[:, c], lights) for c in range(theta.shape[1])], axis=-1)
 

@@ -94,6 +94,11 @@ FAR_FROM_DATA_DEG = 25.0  # a light further than this from every observed one ge
 # chunks in flight the most of the rest), of 2**22 no less (relight(...).values' peak RSS;
 # the command's: bench/relight_memory.py).
 BAND_BYTES = 2**24
+# A far-light store's surface blend is relit by the compiled kernel (physical_far.blend) where the
+# image's pixels times its lights (the photographs' and the asked ones) reach this, by NumPy below:
+# loading Numba and the kernel took 0.3 s, 15-25 % of a small capture's ltm relight (coin 1.75 ->
+# 2.03 s), where at 1 MP the kernel saves 0.8 s.
+COMPILED_WORK = 2**24
 # Relit images at ``auto`` exposure are encoded (encoded_images) in bands of rows of at most this
 # many pixels: a whole 24 MP image at once peaked at 3.0 GiB for one light
 # (bench/relight_memory.py).
@@ -558,7 +563,8 @@ def _far_image(ds: xr.Dataset, encoded: da.Array, codes: np.ndarray, models: dic
     encoded = encoded.rechunk((-1, rows, cols, *(-1,) * (encoded.ndim - 3)))
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE] if blends else []
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
-    operators = {c: _FarOperator.of(m, train, dirs) for c, m in models.items()}
+    compiled = height * width * (len(train) + len(dirs)) >= COMPILED_WORK
+    operators = {c: _FarOperator.of(m, train, dirs, compiled) for c, m in models.items()}
 
     def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, frames: np.ndarray,
               *values: np.ndarray) -> np.ndarray:
@@ -615,20 +621,22 @@ class _FarOperator:
     """A far-light model's image at ``dirs`` from the encoded photographs at ``train``:
     ``linear @ frames``, plus for a surface blend ``weight (srgb(M(dirs)) - smoother @
     srgb(M(train)))`` (:meth:`ltmstore.stages.surface.Blend.correction`), its two sums over
-    the photographs taken as one."""
+    the photographs taken as one: ``compiled``, in one pass per pixel
+    (:func:`ltmstore.stages.surface.blend_encoded`), else in NumPy."""
 
     model: Model | surface.Blend
     train: np.ndarray
     dirs: np.ndarray
     weights: np.ndarray  # (d, n) float64, or (d, 2n): the frames' then the model's
+    compiled: bool
 
     @classmethod
-    def of(cls, model: Model | surface.Blend, train: np.ndarray, dirs: np.ndarray
-           ) -> _FarOperator:
+    def of(cls, model: Model | surface.Blend, train: np.ndarray, dirs: np.ndarray,
+           compiled: bool) -> _FarOperator:
         weights = model.weights(train, dirs)
         if isinstance(model, surface.Blend):
             weights = np.hstack([weights, -model.weight * model.smoother.weights(train, dirs)])
-        return cls(model, train, dirs, weights.astype(np.float64))
+        return cls(model, train, dirs, weights.astype(np.float64), compiled)
 
     def __call__(self, frames: np.ndarray, values: list[np.ndarray],
                  visible: tuple[np.ndarray, np.ndarray] | None, pixels: np.ndarray | slice
@@ -641,9 +649,16 @@ class _FarOperator:
             return _weighted_sum(self.weights, frames)
         blend = self.model
         at, to = (None, None) if visible is None else (v[pixels] for v in visible)
-        return surface.blend_encoded(frames, self.weights, surface.surface_theta(*values),
-                                     self.train, self.dirs, blend.weight, lobe=blend.lobe,
-                                     visible=(at, to))
+        theta = surface.surface_theta(*values)
+        if self.compiled:
+            return surface.blend_encoded(frames, self.weights, theta, self.train, self.dirs,
+                                         blend.weight, lobe=blend.lobe, visible=(at, to))
+        color = frames.ndim == 3
+        at_train, query = (surface.model_encoded(theta, d, color=color, lobe=blend.lobe,
+                                                 visible=v, compiled=False)
+                           for d, v in ((self.train, at), (self.dirs, to)))
+        return (_weighted_sum(self.weights, np.concatenate([frames, at_train]))
+                + np.float32(blend.weight) * query)
 
 
 def _weighted_sum(weights: np.ndarray, values: np.ndarray) -> np.ndarray:

@@ -269,19 +269,22 @@ def fit_image(rgb: np.ndarray, train: np.ndarray, lobe: str = "ggx", *,
 
 
 def model_encoded(theta: np.ndarray, directions: np.ndarray, *, color: bool,
-                  lobe: str = "ggx", visible: np.ndarray | None = None) -> np.ndarray:
+                  lobe: str = "ggx", visible: np.ndarray | None = None,
+                  compiled: bool = True) -> np.ndarray:
     """The model (its lobe of the distribution ``lobe``) at ``directions (d, 3)``,
     sRGB-encoded: ``(d, p, 3)`` with ``color``, else the luminance ``(d, p)``; ``theta (p, 3,
-    6)``; ``visible (p, d)``: how much of each light reaches each pixel (None: all)."""
+    6)``; ``visible (p, d)``: how much of each light reaches each pixel (None: all);
+    ``compiled``: rendered by :func:`ltmstore.solve.physical.render_colour`'s kernel."""
     if visible is None and not color and _shared_geometry(theta):
         # the model is linear in albedo, lobe strength and floor, and the channels share the
         # normal and roughness: the luminance is the model of the luminance's parameters (one
         # render instead of three; equal to float32 rounding)
         luma = _luminance_theta(theta)
-        linear = physical.render_colour(luma, physical.far_lights(directions, len(luma), lobe))
+        linear = physical.render_colour(luma, physical.far_lights(directions, len(luma), lobe),
+                                        compiled=compiled)
         return linear_to_srgb(linear[..., 0].T.clip(min=0))
     rgb = physical.render_colour(theta, physical.far_lights(directions, len(theta), lobe,
-                                                            visible))
+                                                            visible), compiled=compiled)
     linear = np.moveaxis(rgb if color else rgb @ LUMA, 1, 0).clip(min=0)
     return linear_to_srgb(linear.astype(np.float32))
 
