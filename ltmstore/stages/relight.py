@@ -95,9 +95,10 @@ FAR_FROM_DATA_DEG = 25.0  # a light further than this from every observed one ge
 # the command's: bench/relight_memory.py).
 BAND_BYTES = 2**24
 # A far-light store's surface blend is relit by the compiled kernel (physical_far.blend) where the
-# image's pixels times its lights (the photographs' and the asked ones) reach this, by NumPy below:
-# loading Numba and the kernel took 0.3 s, 15-25 % of a small capture's ltm relight (coin 1.75 ->
-# 2.03 s), where at 1 MP the kernel saves 0.8 s.
+# image's pixels times its photographs reach this, by NumPy below: loading Numba and the kernel
+# took 0.3 s, 15-25 % of a small capture's ltm relight (coin 1.75 -> 2.03 s), where at 1 MP the
+# kernel saves 0.8 s. Not the asked lights: at many (the web export's 256) NumPy's BLAS sums them
+# faster than the kernel's loop (the coin's export 5.4 -> 5.8 s with them counted).
 COMPILED_WORK = 2**24
 # Relit images at ``auto`` exposure are encoded (encoded_images) in bands of rows of at most this
 # many pixels: a whole 24 MP image at once peaked at 3.0 GiB for one light
@@ -563,7 +564,7 @@ def _far_image(ds: xr.Dataset, encoded: da.Array, codes: np.ndarray, models: dic
     encoded = encoded.rechunk((-1, rows, cols, *(-1,) * (encoded.ndim - 3)))
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE] if blends else []
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
-    compiled = height * width * (len(train) + len(dirs)) >= COMPILED_WORK
+    compiled = height * width * len(train) >= COMPILED_WORK
     operators = {c: _FarOperator.of(m, train, dirs, compiled) for c, m in models.items()}
 
     def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, frames: np.ndarray,
