@@ -528,7 +528,8 @@ def open_store(path: str | os.PathLike | Store) -> xr.Dataset:
 def _frames_per_task(ds: xr.Dataset, source: str | Store, group: zarr.Group) -> xr.Dataset:
     """``ds`` with its frames read at least :data:`FRAMES_PER_TASK` frames a Dask task along
     ``t`` (a whole number of stored chunks; the other variables one task per chunk). A 24 MP
-    classic capture stores one photograph a chunk (``ingest-rti``'s memory): one task per
+    classic capture ingested before ``ingest-rti`` spilled its frames
+    (:class:`ltmstore.stages.frames.FrameSink`) stores one photograph a chunk: one task per
     chunk was 345,000 tasks to relight it, whose scheduling took longer than the relighting."""
     import xarray as xr
 

@@ -58,7 +58,8 @@ from ltmstore.stages.frames import (
 __all__ = ["DISK", "far_lights", "held_out_record", "ingest_rti"]
 
 # Memory held by frames waiting to be written (one chunk along t) and, apart, by photographs
-# decoded ahead of the writer: fewer frames per chunk and fewer ahead on large photographs, and
+# decoded ahead of the writer: fewer frames held (spilled: FrameSink) and fewer ahead on large
+# photographs, and
 # photographs above BAND_PIXELS converted by the writer band by band, so that a 24 MP capture
 # ingests in a bounded amount of memory (bench/ingest_memory.py).
 BUFFER_BYTES = 256 * 2**20
@@ -146,7 +147,8 @@ def ingest_rti(lp_path: str | os.PathLike, store: str | os.PathLike, *,
         begin_stage(group, STAGE)
         pixels = first.shape[0] * first.shape[1]
         sink = FrameSink(group, transfer=chosen.transfer, expected_frames=len(names),
-                         chunk_frames=_frames_per_chunk(pixels, chunk_frames))
+                         chunk_frames=chunk_frames,
+                         held_frames=_frames_held(pixels, chunk_frames))
         # closing: the decoding threads end with an error too
         by_band = pixels > BAND_PIXELS
         # RGB, and its float32 Y, Cb, Cr
@@ -252,7 +254,7 @@ def _white(rgb: np.ndarray) -> bool:
     return bool(rgb[0].min() == top) and bool(rgb.min() == top)
 
 
-def _frames_per_chunk(pixels: int, requested: int) -> int:
+def _frames_held(pixels: int, requested: int) -> int:
     """``requested``, or fewer where that many frames of ``pixels`` would hold more than
     :data:`BUFFER_BYTES` before they are written."""
     per_frame = 3 * np.dtype(OBSERVATION_DTYPE).itemsize * pixels  # Y and Cb, Cr

@@ -88,6 +88,31 @@ def test_frame_sink_streams_by_block(tmp_path):
     np.testing.assert_allclose(group["chroma"][...], 0.0, atol=1e-6)
 
 
+@pytest.mark.parametrize("chunk, held, spilled", [(4, 1, True), (4, 3, True), (16, 10, False)])
+def test_frame_sink_spills_when_few_frames_are_held(tmp_path, chunk, held, spilled):
+    """Holding only a few frames (large photographs: fewer than ``SPILL_BELOW``), the sink
+    spills them in bands of rows and writes ``frames`` and ``frame_chroma`` in whole chunks at
+    the end: the same arrays, chunked as if every chunk had been held, and no spill left in the
+    store. Holding more, it writes chunks as deep as what it holds."""
+    rng = np.random.default_rng(5)
+    ycc = rng.uniform([0.05, -0.1, -0.1], [0.9, 0.1, 0.1], (23, 5, 300, 3)).astype(np.float32)
+    group = zarr.open_group(str(tmp_path / "g.zarr"), mode="w", zarr_format=3)
+    sink = FrameSink(group, transfer="linear", chunk_frames=chunk, held_frames=held)
+    for frame in ycc:
+        sink.add(np.zeros((5, 300, 3), np.uint8), True, source="f", ycc=frame)
+        assert ("spilled_frames" in group) == spilled and ("frames" in group) != spilled
+    sink.finish(np.arange(23.0))
+    assert sorted(group.array_keys()) == ["channel", "chroma", "chroma_spread", "frame_chroma",
+                                          "frames", "t", "x", "y"]
+    depth = chunk if spilled else held
+    assert group["frames"].chunks == (depth, 5, 256)
+    assert group["frame_chroma"].chunks == (1, depth, 5, 256)
+    np.testing.assert_array_equal(group["frames"][...], ycc[..., 0].astype(np.float16))
+    np.testing.assert_array_equal(group["frame_chroma"][...],
+                                  np.moveaxis(ycc[..., 1:], -1, 0).astype(np.float16))
+    assert group["frames"].attrs["long_name"] == "linear luminance Y (BT.601 weights)"
+
+
 @pytest.mark.parametrize("expected_frames", [None, 6], ids=["compiled", "numpy"])
 def test_frame_sink_sums_as_numpy_does(tmp_path, expected_frames):
     """The per-frame pass, compiled (a capture of unknown length) or NumPy's (a short one,
