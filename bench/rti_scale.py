@@ -3,18 +3,20 @@ relightable store and to the refined one) and peak memory against the image's si
 earlier code and the C++ Relight fitter.
 
 Run: ``python bench/rti_scale.py [--data ../shared/data] [--out bench/results] [--sizes 1,4,12]
-[--lights 47] [--repeats 2] [--old TREE] [--old-sizes 1,4,12] [--relight-cli PATH]``.
+[--lights 47] [--repeats 2] [--old TREE] [--old-sizes 1,4,12] [--relight-cli PATH]
+[--stage1-only] [--name rti_scale]``.
 
 Each capture is SynthRTI ``multi-obj1-material1``'s first ``--lights`` dome photographs resized
 to ``SIZE`` megapixels (square, JPEG quality 95, in a temporary folder, never the repository):
 the content is a 320 x 320 render's, so only the time and memory are measured here, not the
 accuracy (``bench/heldout_table.py`` does that at the photographs' own size). Per size and repeat,
 as subprocesses, in turn: this code's commands (``ingest-rti``, ``reconstruct --stage classic``,
-then ``reconstruct``, the refinement), ``--old``'s (``PYTHONPATH=TREE``, at
+``relight`` of one light (the first relit image), then ``reconstruct``, the refinement, which
+``--stage1-only`` leaves out), ``--old``'s (``PYTHONPATH=TREE``, at
 ``--old-sizes`` only: the old code may not fit in memory at the largest) and ``relight-cli -b
 rbf`` when it exists. Wall time and the peak resident memory of each command (its own
 ``ru_maxrss`` from ``wait4``), medians over ``--repeats``; the load average before and after.
-Writes ``rti_scale.json`` and ``rti_scale.png`` to ``--out``.
+Writes ``NAME.json`` and ``NAME.png`` to ``--out``.
 """
 
 from __future__ import annotations
@@ -73,30 +75,40 @@ def run(command: list[str], env: dict | None = None) -> tuple[float, float]:
     return wall, usage.ru_maxrss / 2**20  # kB on Linux
 
 
-def ours(lp: Path, store: Path, env: dict | None = None) -> dict:
+def ours(lp: Path, store: Path, env: dict | None = None, refine: bool = True) -> dict:
     """The commands' wall seconds and peak memory: ``ingest-rti``, ``reconstruct --stage
-    classic`` (with it, ``stage1_s``: the store relights) and ``reconstruct`` (the surface's
-    refinement; ``both_s``: the whole default)."""
+    classic`` (with it, ``stage1_s``: the store relights), ``relight`` of one light
+    (``first_image_s``: the first relit image) and, where ``refine``, ``reconstruct`` (the
+    surface's refinement; ``both_s``: the whole default)."""
     ltm = ltm_command()
     ingest = run([*ltm, "ingest-rti", str(lp), str(store), "--overwrite"], env)
     classic = run([*ltm, "reconstruct", str(store), "--stage", "classic"], env)
-    refine = run([*ltm, "reconstruct", str(store)], env)
+    image = store.with_suffix(".png")
+    image.unlink(missing_ok=True)
+    relit = run([*ltm, "relight", str(store), "--direction", "0.3,0.2,0.9", "-o", str(image)],
+                env)
+    row = {"ingest_rti_s": ingest[0], "classic_s": classic[0], "relight_s": relit[0],
+           "stage1_s": ingest[0] + classic[0], "first_image_s": ingest[0] + classic[0] + relit[0],
+           "ingest_rti_gib": ingest[1], "reconstruct_gib": classic[1], "relight_gib": relit[1]}
+    if refine:
+        again = run([*ltm, "reconstruct", str(store)], env)
+        row.update(refine_s=again[0], reconstruct_s=classic[0] + again[0],
+                   both_s=ingest[0] + classic[0] + again[0],
+                   reconstruct_gib=max(classic[1], again[1]))
     shutil.rmtree(store)
-    return {"ingest_rti_s": ingest[0], "classic_s": classic[0], "refine_s": refine[0],
-            "reconstruct_s": classic[0] + refine[0], "stage1_s": ingest[0] + classic[0],
-            "both_s": ingest[0] + classic[0] + refine[0], "ingest_rti_gib": ingest[1],
-            "reconstruct_gib": max(classic[1], refine[1])}
+    return row
 
 
-def measure(lp: Path, tmp: Path, repeats: int, old: Path | None, relight_cli: str | None
-            ) -> dict:
+def measure(lp: Path, tmp: Path, repeats: int, old: Path | None, relight_cli: str | None,
+            refine: bool = True) -> dict:
     """Medians over ``repeats`` of this code's, the old code's and relight-cli's runs."""
     rows: dict[str, list[float]] = {}
     load_before = load()
     for _ in range(repeats):
-        runs = {"": ours(lp, tmp / "new.zarr")}
+        runs = {"": ours(lp, tmp / "new.zarr", refine=refine)}
         if old is not None:
-            runs["old_"] = ours(lp, tmp / "old.zarr", {**os.environ, "PYTHONPATH": str(old)})
+            runs["old_"] = ours(lp, tmp / "old.zarr", {**os.environ, "PYTHONPATH": str(old)},
+                                refine)
         if relight_cli:
             out = tmp / "relight-rbf"
             shutil.rmtree(out, ignore_errors=True)
@@ -124,6 +136,7 @@ def chart(result: dict, path: Path) -> None:
     for prefix, label, color in series:
         for ax, keys, style, suffix in ((axes[0], ("both_s", "rbf_s"), "o-", ""),
                                         (axes[0], ("stage1_s",), "s--", ", relightable"),
+                                        (axes[0], ("first_image_s",), "^:", ", first image"),
                                         (axes[1], ("reconstruct_gib", "rbf_gib"), "o-", ""),
                                         (axes[1], ("ingest_rti_gib",), "s--", ", ingest-rti")):
             values = np.array([next((sizes[s][prefix + k] for k in keys
@@ -132,8 +145,8 @@ def chart(result: dict, path: Path) -> None:
                 ax.plot(mp, values, style, color=color, label=label + suffix)
     memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     axes[1].axhline(memory, color="k", ls="--", lw=1, label=f"this machine ({memory:.0f} GiB)")
-    axes[0].set_title("ingest-rti + reconstruct (wall): both stages,\n"
-                      "and relightable (--stage classic)", fontsize=10)
+    axes[0].set_title("ingest-rti + reconstruct (wall): both stages, relightable\n"
+                      "(--stage classic) and its first relit image (+ ltm relight)", fontsize=10)
     axes[0].set_ylabel("seconds")
     axes[1].set_title("peak resident memory of reconstruct (and of ingest-rti)", fontsize=10)
     axes[1].set_ylabel("GiB")
@@ -158,6 +171,9 @@ def main() -> None:
     parser.add_argument("--old-label", default="old code")
     parser.add_argument("--old-sizes", help="sizes at which --old runs (default: all)")
     parser.add_argument("--relight-cli", default=shutil.which("relight-cli"))
+    parser.add_argument("--stage1-only", action="store_true",
+                        help="leave the refinement out: the relightable store and its first image")
+    parser.add_argument("--name", default="rti_scale", help="the results' file name")
     args = parser.parse_args()
     relight_cli = args.relight_cli if args.relight_cli and Path(args.relight_cli).exists() \
         else None
@@ -171,20 +187,22 @@ def main() -> None:
         tmp = Path(tmp)
         # once each, not timed: Numba compiles and caches its kernels in a tree's first run
         warm = resized_capture(args.data, tmp / "warm-up", 1e4, args.lights)
-        ours(warm, tmp / "new.zarr")
+        ours(warm, tmp / "new.zarr", refine=not args.stage1_only)
         if args.old:
-            ours(warm, tmp / "old.zarr", {**os.environ, "PYTHONPATH": str(args.old)})
+            ours(warm, tmp / "old.zarr", {**os.environ, "PYTHONPATH": str(args.old)},
+                 not args.stage1_only)
         for size in args.sizes.split(","):
             lp = resized_capture(args.data, tmp / f"capture-{size}MP", float(size) * 1e6,
                                  args.lights)
             old = args.old if size in old_sizes else None
-            row = measure(lp, tmp, args.repeats, old, relight_cli)
+            row = measure(lp, tmp, args.repeats, old, relight_cli, not args.stage1_only)
             result["sizes"][size] = row
-            line = (f"{size:>5s} MP: ltm {row['both_s']:.1f} s (relightable after "
-                    f"{row['stage1_s']:.1f} s), reconstruct peak "
-                    f"{row['reconstruct_gib']:.2f} GiB")
-            if "old_both_s" in row:
-                line += (f"; old {row['old_both_s']:.1f} s ({row['old_stage1_s']:.1f} s), "
+            line = (f"{size:>5s} MP: ltm {row.get('both_s', np.nan):.1f} s (relightable after "
+                    f"{row['stage1_s']:.1f} s, first image {row['first_image_s']:.1f} s), "
+                    f"reconstruct peak {row['reconstruct_gib']:.2f} GiB")
+            if "old_stage1_s" in row:
+                line += (f"; old {row.get('old_both_s', np.nan):.1f} s "
+                         f"({row['old_stage1_s']:.1f} s, {row['old_first_image_s']:.1f} s), "
                          f"{row['old_reconstruct_gib']:.2f} GiB")
             if "relight_cli_rbf_s" in row:
                 line += (f"; relight-cli {row['relight_cli_rbf_s']:.1f} s, "
@@ -193,9 +211,9 @@ def main() -> None:
             shutil.rmtree(lp.parent)
             result["load_end"] = load()
             args.out.mkdir(parents=True, exist_ok=True)  # after every size: a long run
-            (args.out / "rti_scale.json").write_text(json.dumps(result, indent=1))
-    chart(result, args.out / "rti_scale.png")
-    print(f"wrote {args.out / 'rti_scale.json'} and {args.out / 'rti_scale.png'}")
+            (args.out / f"{args.name}.json").write_text(json.dumps(result, indent=1))
+    chart(result, args.out / f"{args.name}.png")
+    print(f"wrote {args.out / args.name}.json and .png")
 
 
 if __name__ == "__main__":
