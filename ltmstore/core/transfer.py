@@ -30,11 +30,13 @@ def srgb_to_linear(v: np.ndarray) -> np.ndarray:
 
 def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB encoding of linear values (clipped to ``[0, 1]``; float32)."""
-    v = np.clip(np.asarray(v, dtype=np.float32), 0, 1)
-    out = np.power(v, np.float32(1 / 2.4))
+    out = np.clip(np.asarray(v, dtype=np.float32), 0, 1)
+    low = out <= 0.0031308
+    dark = out[low] * np.float32(12.92)  # few values: the rest are encoded in place
+    np.power(out, np.float32(1 / 2.4), out=out)
     out *= np.float32(1.055)
     out -= np.float32(0.055)
-    np.multiply(v, np.float32(12.92), out=out, where=v <= 0.0031308)
+    out[low] = dark
     return out
 
 

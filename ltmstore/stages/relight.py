@@ -100,6 +100,9 @@ BAND_BYTES = 2**24
 # kernel saves 0.8 s. Not the asked lights: at many (the web export's 256) NumPy's BLAS sums them
 # faster than the kernel's loop (the coin's export 5.4 -> 5.8 s with them counted).
 COMPILED_WORK = 2**24
+# Up to this many asked lights a compiled classic model sums the photographs as it encodes them
+# (far_sums.encoded_sum); at more, BLAS sums the encoded photographs faster than its loop.
+FUSED_LIGHTS = 8
 # Relit images at ``auto`` exposure are encoded (encoded_images) in bands of rows of at most this
 # many pixels: a whole 24 MP image at once peaked at 3.0 GiB for one light
 # (bench/relight_memory.py).
@@ -507,8 +510,8 @@ def _relight_far(ds: xr.Dataset, dirs: np.ndarray, color: bool) -> xr.DataArray:
     # each pixel's tile by its position in the image: ds may be a region or strided
     codes = chosen.values[(ds["y"].values // ty)[:, None], (ds["x"].values // tx)[None, :]]
     models = {int(c): _far_model(ds, chosen.attrs["methods"][int(c)]) for c in np.unique(codes)}
-    encoded = _encoded_frames(ds, np.flatnonzero(valid), color)
-    image = _far_image(ds, encoded, codes, models, train, dirs)
+    planes, exposure = _photographs(ds, np.flatnonzero(valid), color)
+    image = _far_image(ds, planes, exposure, codes, models, train, dirs)
     dims = (LIGHT, "y", "x", COLOR) if color else (LIGHT, "y", "x")
     coords = {LIGHT: np.arange(len(dirs)), "light_lx": (LIGHT, dirs[:, 0]),
               "light_ly": (LIGHT, dirs[:, 1]), "light_lz": (LIGHT, dirs[:, 2]),
@@ -534,65 +537,99 @@ def _far_model(ds: xr.Dataset, name: str) -> Model | surface.Blend:
     return blend
 
 
-def _encoded_frames(ds: xr.Dataset, used: np.ndarray, color: bool) -> da.Array:
-    """The photographs at ``used``, sRGB-encoded at the capture's mean exposure, lazily:
-    ``(t, y, x[, color])`` float32, what the models are fitted to."""
-    luminance = ds[FRAMES].isel({T: used}).drop_vars(T)
-    exposure = (ds[surface.EXPOSURE].isel({T: used}).drop_vars(T).astype(np.float32)
-                if surface.EXPOSURE in ds else 1)
+def _photographs(ds: xr.Dataset, used: np.ndarray, color: bool
+                 ) -> tuple[list[da.Array], np.ndarray]:
+    """The photographs at ``used``, lazily: their linear Y (and Cb, Cr) ``(t, y, x)`` float32,
+    and the capture's exposure of each ``(t,)`` float32 (:func:`_linear` makes of them the
+    linear values whose sRGB encoding the models are fitted to)."""
+    planes = [ds[FRAMES]]
     if color:
-        cb, cr = (ds[FRAME_CHROMA].sel(channel=c, drop=True).isel({T: used}).drop_vars(T)
-                  .astype(np.float32) for c in ("cb", "cr"))
-        linear = _stack_rgb(luminance, cb, cr).clip(min=0) / exposure
-    else:
-        linear = luminance / exposure
-    return da.asarray(_transfer(linear, linear_to_srgb).data)
+        planes += [ds[FRAME_CHROMA].sel(channel=c, drop=True) for c in ("cb", "cr")]
+    planes = [da.asarray(p.isel({T: used}).data.astype(np.float32)) for p in planes]
+    exposure = (ds[surface.EXPOSURE].values[used].astype(np.float32)
+                if surface.EXPOSURE in ds else np.ones(len(used), np.float32))
+    return planes, exposure
 
 
-def _far_image(ds: xr.Dataset, encoded: da.Array, codes: np.ndarray, models: dict,
-               train: np.ndarray, dirs: np.ndarray) -> da.Array:
+def _linear(*planes: np.ndarray, exposure: np.ndarray, compiled: bool) -> np.ndarray:
+    """The linear RGB (or Y) ``(t, y, x, 3)`` (or ``(t, y, x, 1)``) of photographs' ``planes``,
+    their Y (and Cb, Cr) ``(t, y, x)``: clipped at 0 and divided by their ``exposure``
+    (compiled, :func:`ltmstore.stages.far_sums.linear`, also clipped at 1 as
+    :func:`~ltmstore.core.transfer.linear_to_srgb` clips: the same encoding)."""
+    color = len(planes) == 3
+    if compiled:
+        from ltmstore.stages import far_sums
+
+        out = np.empty((*planes[0].shape, 3 if color else 1), np.float32)
+        y, cb, cr = planes if color else planes * 3  # the chroma ignored without colour
+        far_sums.linear(*(p.reshape(len(p), -1) for p in (y, cb, cr)), exposure, color,
+                        out.reshape(len(out), -1, out.shape[-1]))
+        return out
+    scale = exposure.reshape(-1, 1, 1, 1)
+    if color:
+        return np.clip(_rgb(*planes), 0, None) / scale
+    return planes[0][..., None] / scale
+
+
+def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, codes: np.ndarray,
+               models: dict, train: np.ndarray, dirs: np.ndarray) -> da.Array:
     """Linear images ``(light, y, x[, color])`` of the far-light models: one task per chunk of
     the frames, split in bands of rows where it would take more than :data:`BAND_BYTES`
     (:func:`~ltmstore.stages.surface.row_bands`), each reading its part of the frames and of
     the surface variables only (a region of the image, an IIIF tile, computes its own
-    columns, not whole rows)."""
+    columns, not whole rows). ``planes`` and ``exposure``: :func:`_photographs`."""
     height, width = codes.shape
+    color = len(planes) == 3
     blends = {c: m for c, m in models.items() if isinstance(m, surface.Blend)}
-    cols = encoded.chunks[2]  # the frames' own chunks (each read once), their rows split
+    cols = planes[0].chunks[2]  # the frames' own chunks (each read once), their rows split
     most = surface.row_bands((len(train) + len(dirs), height, max(cols)), BAND_BYTES)[0].stop
-    rows = tuple(part for n in encoded.chunks[1] for part in _split(n, most))
-    encoded = encoded.rechunk((-1, rows, cols, *(-1,) * (encoded.ndim - 3)))
+    rows = tuple(part for n in planes[0].chunks[1] for part in _split(n, most))
+    compiled = height * width * len(train) >= COMPILED_WORK
+    linear = da.blockwise(_linear, "tyxc", *(x for p in planes for x in (p.rechunk(
+        (-1, rows, cols)), "tyx")), new_axes={"c": 3 if color else 1}, dtype=np.float32,
+                          exposure=exposure, compiled=compiled)
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE] if blends else []
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
-    compiled = height * width * len(train) >= COMPILED_WORK
     operators = {c: _FarOperator.of(m, train, dirs, compiled) for c, m in models.items()}
 
     def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, frames: np.ndarray,
               *values: np.ndarray) -> np.ndarray:
-        shape = frames.shape[1:]  # (y, x[, color]); pixels flat below
-        frames = frames.reshape(len(frames), -1, *shape[2:])
+        shape = frames.shape[1:] if color else frames.shape[1:-1]  # (y, x[, color])
+        frames = frames.reshape(len(frames), -1, frames.shape[-1])  # (t, pixels, c) below
         values = [v.reshape(-1, *v.shape[2:]) for v in values]
         where = where.ravel()
         present = np.unique(where)
         visible = {c: _visible(ds, blends[c], ys, xs, train, dirs) for c in present
                    if c in blends and blends[c].shadows}
+        # the classic models' sums encoded as they are summed where the kernel repays it
+        fused = compiled and len(dirs) <= FUSED_LIGHTS and not any(c in blends for c in present)
+        if not fused:
+            frames = linear_to_srgb(frames if color else frames[..., 0])
+
+        def image(c: int, inside: np.ndarray | slice) -> np.ndarray:
+            if fused:
+                out = operators[c].encoded_sum(frames[:, inside])
+                return out if color else out[..., 0]
+            return operators[c](frames[:, inside], [v[inside] for v in values],
+                                visible.get(c), inside)
+
         if len(present) == 1:  # one model for the whole block: no copies in and out
-            out = operators[present[0]](frames, values, visible.get(present[0]), slice(None))
+            out = image(present[0], slice(None))
         else:
-            out = np.empty((len(dirs), *frames.shape[1:]), np.float32)
+            out = np.empty((len(dirs), frames.shape[1], *shape[2:]), np.float32)
             for c in present:
                 inside = where == c
-                out[:, inside] = operators[c](frames[:, inside], [v[inside] for v in values],
-                                              visible.get(c), inside)
+                out[:, inside] = image(c, inside)
         return srgb_to_linear(np.clip(out, 0, None, out=out)).reshape(len(dirs), *shape)
 
-    index = "yx" + ("c" if encoded.ndim == 4 else "")
+    index = "yx" + ("c" if color else "")
     at = (da.from_array(np.arange(height), chunks=(rows,)),  # where each block lies
           da.from_array(np.arange(width), chunks=(cols,)))
     args = [at[0], "y", at[1], "x", da.from_array(codes, chunks=(rows, cols)), "yx",
-            encoded, "t" + index]
+            linear, "tyxc"]  # without colour, c (one channel) is not the image's: one block
     args += [x for m in maps for x in (m, "yx" + ("k" if m.ndim == 3 else ""))]
-    return da.blockwise(block, "l" + index, *args, new_axes={"l": len(dirs)},
+    return da.blockwise(block, "l" + index, *args,
+                        new_axes={"l": len(dirs), **({"c": 3} if color else {})},
                         concatenate=True, dtype=np.float32,
                         meta=np.empty((0,) * (len(index) + 1), np.float32))
 
@@ -639,6 +676,17 @@ class _FarOperator:
             weights = np.hstack([weights, -model.weight * model.smoother.weights(train, dirs)])
         return cls(model, train, dirs, weights.astype(np.float64), compiled)
 
+    def encoded_sum(self, linear: np.ndarray) -> np.ndarray:
+        """A classic model's encoded images ``(d, p, c)`` from the photographs' ``linear``
+        values ``(n, p, c)`` (:func:`_linear`, compiled), encoded as they are summed
+        (:func:`ltmstore.stages.far_sums.encoded_sum`): the values of NumPy's passes, bit for
+        bit, without their temporaries."""
+        from ltmstore.stages import far_sums
+
+        out = np.empty((len(self.weights), *linear.shape[1:]), np.float32)
+        far_sums.encoded_sum(linear, np.power(linear, np.float32(1 / 2.4)), self.weights, out)
+        return out
+
     def __call__(self, frames: np.ndarray, values: list[np.ndarray],
                  visible: tuple[np.ndarray, np.ndarray] | None, pixels: np.ndarray | slice
                  ) -> np.ndarray:
@@ -670,11 +718,6 @@ def _weighted_sum(weights: np.ndarray, values: np.ndarray) -> np.ndarray:
     tests/stages/test_relight_bands.py)."""
     flat = values.reshape(len(values), -1).astype(np.float64)
     return (weights @ flat).astype(np.float32).reshape(len(weights), *values.shape[1:])
-
-
-def _transfer(values: xr.DataArray, func) -> xr.DataArray:
-    """``func`` (an sRGB transfer function) applied lazily, block by block."""
-    return xr.apply_ufunc(func, values, dask="parallelized", output_dtypes=[np.float32])
 
 
 def to_rgb(luminance: xr.DataArray, chroma: xr.DataArray) -> xr.DataArray:

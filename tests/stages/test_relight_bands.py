@@ -113,3 +113,39 @@ def _blend(ds) -> sf.Blend:
     chosen = ds[rl.METHOD_MAP]
     names = [chosen.attrs["methods"][int(c)] for c in np.unique(chosen.values)]
     return sf.Blend.from_name(next(n for n in names if n.startswith(sf.PREFIX)))
+
+
+@pytest.fixture(scope="module")
+def classic_store(tmp_path_factory):
+    """The same capture relightable from its first stage (classic models only)."""
+    tmp = tmp_path_factory.mktemp("classic")
+    lp = write_capture(tmp / "capture", flash(sum(RINGS.values())), shape=(40, 36))
+    ingest_rti(lp, tmp / "s.zarr", progress=False)
+    reconstruct(tmp / "s.zarr", progress=False, stage="classic", tile=8)
+    return tmp / "s.zarr"
+
+
+@pytest.mark.parametrize("several", [False, True], ids=["one-model", "three-models"])
+@pytest.mark.parametrize("color", [True, False])
+def test_the_compiled_classic_sums_relight_as_numpy_does(classic_store, monkeypatch, color,
+                                                         several):
+    """Above :data:`~ltmstore.stages.relight.COMPILED_WORK` a classic model sums the encoded
+    photographs as it encodes them (:func:`ltmstore.stages.far_sums.weighted_sum`), or, at more
+    than :data:`~ltmstore.stages.relight.FUSED_LIGHTS` lights, encodes them compiled for BLAS to
+    sum: the images NumPy gives, to float32 rounding, in blocks of one model and of several."""
+    ds = open_store(classic_store)
+    chosen = ds[rl.METHOD_MAP]
+    classic = [c for c, name in enumerate(chosen.attrs["methods"])
+               if not name.startswith(sf.PREFIX)]
+    assert chosen.values[0, 0] in classic and len(classic) >= 3
+    if several:  # three classic models in diagonal stripes of tiles: blocks of several
+        tiles = np.indices(chosen.shape).sum(axis=0) % 3
+        ds[rl.METHOD_MAP] = chosen.copy(data=np.array(classic[:3], np.int16)[tiles])
+    numpy = rl.relight(ds, directions=DIRECTIONS, color=color).values
+    monkeypatch.setattr(rl, "COMPILED_WORK", 0)
+    fused = rl.relight(ds, directions=DIRECTIONS, color=color).values
+    monkeypatch.setattr(rl, "FUSED_LIGHTS", 0)
+    encoded = rl.relight(ds, directions=DIRECTIONS, color=color).values
+    assert np.isfinite(numpy).all() and numpy.max() > 0.1
+    np.testing.assert_allclose(fused, numpy, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(encoded, numpy, rtol=0, atol=2e-6)
