@@ -191,7 +191,8 @@ class FarFit:
         loo = np.array([np.zeros((len(train),) * 2) if a is None else a for a in operators])
         to_lattice = [m.weights(train, cells).astype(np.float32) for m in models]
         # linear, kept in float16 as stored: each tile converts and encodes its own pixels
-        frames = np.asarray(group[FRAMES][:])[valid]
+        stored = group[FRAMES]  # the valid frames only: no second copy of all of them
+        frames = stored[:] if valid.all() else stored.oindex[np.flatnonzero(valid)]
         plan = plan_tiles(frames.shape[1:], lat.shape, tile=tile or FAR_TILE,
                           chunk_bytes=2**20).with_shards(MIN_SHARDS)
         return cls(method, models, valid, train, lat, cells, loo, usable, to_lattice, frames,
