@@ -241,3 +241,22 @@ def test_loo_mse_by_gram_matrix_is_the_direct_mean():
     np.testing.assert_allclose(_loo_mse(values, loo, usable)[:2], direct[:2], rtol=1e-10)
     assert _loo_mse(values, loo, usable)[2] == np.inf
 
+
+
+def test_large_photographs_are_spilled_into_whole_chunks(lp, tmp_path, monkeypatch):
+    """Where only one photograph may be held before it is written (a 24 MP capture's memory),
+    ingest-rti spills them and stores the frames in chunks of ``chunk_frames`` all the same:
+    the store the one held whole gives, bit for bit, whole by ``ltm check``, no spill left."""
+    from ltmstore.core.store import verify_store
+    from ltmstore.stages import ingest_rti as module
+
+    ingest_rti(lp, tmp_path / "held.zarr", progress=False, chunk_frames=4)
+    monkeypatch.setattr(module, "BUFFER_BYTES", 6 * 6 * 5)  # one 6 x 5 frame of Y, Cb, Cr
+    ingest_rti(lp, tmp_path / "spilled.zarr", progress=False, chunk_frames=4)
+    held, spilled = (xr.open_zarr(tmp_path / name, consolidated=False)
+                     for name in ("held.zarr", "spilled.zarr"))
+    assert set(spilled.variables) == set(held.variables)
+    for name in ("frames", "frame_chroma", "chroma", "chroma_spread"):
+        np.testing.assert_array_equal(spilled[name].values, held[name].values)
+        assert spilled[name].encoding["chunks"] == held[name].encoding["chunks"]
+    assert verify_store(tmp_path / "spilled.zarr", progress=False)["damaged"] == []
