@@ -66,8 +66,9 @@ _YCBCR = np.array([LUMA, (np.array([0, 0, 1]) - LUMA) / 1.772,  # Cb = (B - Y) /
                    (np.array([1, 0, 0]) - LUMA) / 1.402], dtype=np.float32)  # Cr = (R - Y) / 1.402
 
 
-def rgb_to_ycbcr(rgb: np.ndarray) -> np.ndarray:
-    """Linear RGB (..., 3) to Y, Cb, Cr (..., 3) float32, BT.601 weights, no offsets.
+def rgb_to_ycbcr(rgb: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Linear RGB (..., 3) to Y, Cb, Cr (..., 3) float32, BT.601 weights, no offsets (into
+    ``out`` where given: C-contiguous float32 of ``rgb``'s shape).
 
     One 3 x 3 transform per pixel (OpenCV's, vectorised: about 4x NumPy's channel by channel
     on a 4K frame)."""
@@ -76,7 +77,8 @@ def rgb_to_ycbcr(rgb: np.ndarray) -> np.ndarray:
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
     if rgb.size == 0:
         return rgb.copy()
-    return cv2.transform(rgb.reshape(-1, 1, 3), _YCBCR).reshape(rgb.shape)
+    dst = None if out is None else out.reshape(-1, 1, 3)
+    return cv2.transform(rgb.reshape(-1, 1, 3), _YCBCR, dst=dst).reshape(rgb.shape)
 
 
 def rgb_from_ycbcr(y, cb, cr):

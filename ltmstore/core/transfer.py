@@ -59,21 +59,27 @@ def transfer_lut(transfer: str, bits: int = 8) -> np.ndarray:
     return decode(codes if bits == 8 else codes * (255 / (2**bits - 1)), transfer)
 
 
-def linearise(code: np.ndarray, lut: np.ndarray) -> np.ndarray:
+def linearise(code: np.ndarray, lut: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``lut[code]``: the linear light of an image's code values by a :func:`transfer_lut`
-    (float32). 8-bit images of up to four channels go through OpenCV's table lookup, about 2x
-    NumPy's gather on a 4K frame; other integer images through NumPy. A floating-point image
-    holds linear light already (a float TIFF or EXR is linear by convention; a reader that is
-    told otherwise decodes it first): returned as float32, the table unused."""
+    (float32; into ``out`` where given, of the image's shape). 8-bit images of up to four
+    channels go through OpenCV's table lookup, about 2x NumPy's gather on a 4K frame; other
+    integer images through NumPy. A floating-point image holds linear light already (a float
+    TIFF or EXR is linear by convention; a reader that is told otherwise decodes it first):
+    returned as float32, the table unused."""
     code = np.asarray(code)
     if np.issubdtype(code.dtype, np.floating):
-        return code.astype(np.float32, copy=False)
-    if code.dtype == np.uint8 and lut.shape == (256,) and code.size and (
+        values = code.astype(np.float32, copy=False)
+    elif code.dtype == np.uint8 and lut.shape == (256,) and code.size and (
             code.ndim == 2 or (code.ndim == 3 and code.shape[2] <= 4)):
         import cv2
 
-        return cv2.LUT(code, lut.astype(np.float32, copy=False).reshape(1, 256))
-    return lut[code]
+        return cv2.LUT(code, lut.astype(np.float32, copy=False).reshape(1, 256), dst=out)
+    else:
+        values = lut[code]
+    if out is None:
+        return values
+    out[...] = values
+    return out
 
 
 def check_depth(depth: int | str) -> int | str:

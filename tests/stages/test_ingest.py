@@ -406,3 +406,32 @@ def test_acquisition_json_error_propagates(acq_dir, tmp_path):
     (folder / "acquisition.json").write_text(json.dumps({**meta, "video": "../video.mkv"}))
     with pytest.raises(LtmError, match="leaves the folder"):
         ingest(folder, tmp_path / "s.zarr", progress=False)
+
+
+def test_frame_sink_converts_bands_on_threads_as_whole_frames(tmp_path, monkeypatch):
+    """A large photograph is converted and summed in bands of rows, two threads at once, each
+    in its own arrays: the stored frames, chroma and spread are those of one band to float32
+    rounding (OpenCV's vectorised conversion rounds a row's tail otherwise than its body, so
+    where a band ends can move the last bit)."""
+    import ltmstore.stages.frames as frames_module
+
+    rng = np.random.default_rng(7)
+    rgb = rng.integers(0, 256, (5, 37, 11, 3), dtype=np.uint8)
+
+    def ingest(name: str) -> tuple[zarr.Group, FrameSink]:
+        group = zarr.open_group(str(tmp_path / name), mode="w", zarr_format=3)
+        sink = FrameSink(group, transfer="srgb", chunk_frames=2)
+        for i, frame in enumerate(rgb):
+            sink.add(frame, i != 3, source="f")
+        sink.finish(np.arange(5.0))
+        return group, sink
+
+    whole, one = ingest("whole.zarr")
+    monkeypatch.setattr(frames_module, "BAND_PIXELS", 2 * 4 * 11)  # bands of 4 rows, 2 at once
+    banded, bands = ingest("banded.zarr")
+    for name in ("frames", "frame_chroma"):  # float16: one step of its rounding at most
+        np.testing.assert_allclose(banded[name][...], whole[name][...], rtol=2**-10)
+    for name in ("chroma", "chroma_spread"):
+        np.testing.assert_allclose(banded[name][...], whole[name][...], rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(bands.brightness, one.brightness, rtol=1e-6)
+    assert np.ptp(whole["chroma"][...]) > 0.1  # coloured: the chroma is compared, not zeros
