@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -287,10 +288,11 @@ class FrameSink:
         if self._rig is not None and valid:
             self.observed[0] += float(np.isfinite(ycc[..., 0]).mean())
             self.observed[1] += 1
-        if ycc is None:  # disjoint rows of the sums and buffers: on threads
-            if self._bands is None:
-                self._bands = ThreadPoolExecutor(BAND_THREADS, thread_name_prefix="ltm-band")
-            parts = list(self._bands.map(lambda rows: self._add_band(rgb8, rows, valid), bands))
+        if ycc is None and len(bands) > 1:  # disjoint rows of the sums and buffers: on threads
+            parts = list(self._band_threads().map(
+                lambda rows: self._add_band(rgb8, rows, valid), bands))
+        elif ycc is None:  # a small frame: no thread to hand it to
+            parts = [self._add_band(rgb8, bands[0], valid)]
         else:
             parts = [self._add_rows(ycc, bands[0], valid)]
         total, count = (sum(part[k] for part in parts) for k in (0, 1))
@@ -299,6 +301,14 @@ class FrameSink:
         self.n += 1
         if self._pending == self._held:
             self._flush()
+
+    def _band_threads(self) -> ThreadPoolExecutor:
+        """The threads converting bands, started by the first large frame and ended with the
+        sink (by :meth:`finish`, or when a failed ingest drops it)."""
+        if self._bands is None:
+            self._bands = ThreadPoolExecutor(BAND_THREADS, thread_name_prefix="ltm-band")
+            weakref.finalize(self, self._bands.shutdown, wait=False)
+        return self._bands
 
     def _add_band(self, rgb8: np.ndarray, rows: slice, valid: bool) -> tuple[float, int]:
         """Convert, sum and buffer the rows ``rows`` of the pending frame ``rgb8``, in this

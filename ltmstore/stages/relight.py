@@ -585,12 +585,15 @@ def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, cod
     most = surface.row_bands((len(train) + len(dirs), height, max(cols)), BAND_BYTES)[0].stop
     rows = tuple(part for n in planes[0].chunks[1] for part in _split(n, most))
     compiled = height * width * len(train) >= COMPILED_WORK
-    linear = da.blockwise(_linear, "tyxc", *(x for p in planes for x in (p.rechunk(
-        (-1, rows, cols)), "tyx")), new_axes={"c": 3 if color else 1}, dtype=np.float32,
+    planes = [p.rechunk((-1, rows, cols)) for p in planes]
+    linear = da.blockwise(_linear, "tyxc", *(x for p in planes for x in (p, "tyx")),
+                          new_axes={"c": 3 if color else 1}, dtype=np.float32,
                           exposure=exposure, compiled=compiled)
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE] if blends else []
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
     operators = {c: _FarOperator.of(m, train, dirs, compiled) for c, m in models.items()}
+    # the classic models' sums encoded as they are summed where the kernel repays it
+    fusable = compiled and len(dirs) <= FUSED_LIGHTS
 
     def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, frames: np.ndarray,
               *values: np.ndarray) -> np.ndarray:
@@ -601,8 +604,7 @@ def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, cod
         present = np.unique(where)
         visible = {c: _visible(ds, blends[c], ys, xs, train, dirs) for c in present
                    if c in blends and blends[c].shadows}
-        # the classic models' sums encoded as they are summed where the kernel repays it
-        fused = compiled and len(dirs) <= FUSED_LIGHTS and not any(c in blends for c in present)
+        fused = fusable and not any(c in blends for c in present)
         if not fused:
             frames = linear_to_srgb(frames if color else frames[..., 0])
 
