@@ -90,10 +90,10 @@ def test_both_pages_finish_and_camera_b_loses_nothing(captured):
 def test_drawn_path_is_the_true_path(captured):
     """Every point phone A's page drew is a frame's true LED position within the tracker's
     error, in order, at its capture time (after the best clock shift): measured RMS 0.23 mm,
-    largest 0.58 mm, time lags within 7 ms (three runs, two beside three busy processes) of
-    the 67 ms frame interval. The page draws each frame in its own video-frame callback: it
-    drew it after that callback, and a frame that arrived in between went out with its
-    predecessor's time (a CI run: one point of 20 lagged 66 ms)."""
+    largest 0.58 mm, time lags within 5 ms idle and 9 ms beside eight busy processes, of the
+    67 ms frame interval. The page draws each frame in its own video-frame callback, timed by
+    the camera's capture time: it drew it after that callback, and a frame that arrived in
+    between went out with its predecessor's time (a CI run: one point of 20 lagged 66 ms)."""
     path = np.array(captured["a"]["path"])
     truth = true_frames(captured["sim"])
     # How many points the page draws in its 5 s depends on the machine's load (one frame in
@@ -109,9 +109,10 @@ def test_drawn_path_is_the_true_path(captured):
         lags.append(truth[near[np.argmin(distance)], 0] - (t + shift))
     errors_mm = 1e3 * np.array(errors)
     assert np.sqrt(np.mean(errors_mm**2)) < 0.5 and errors_mm.max() < 1.5, errors_mm
-    # 53 ms once in a suite run beside three other processes' tests (load 8); a point sent
-    # with its predecessor's time lags a whole frame interval, 67 ms
-    assert np.abs(lags).max() < 0.06, lags
+    # timed by the camera's capture time: within 9 ms beside eight busy processes (by the
+    # compositor's frame time, up to 79 ms under load); a point sent with its predecessor's
+    # time lags a whole frame interval, 67 ms
+    assert np.abs(lags).max() < 0.03, lags
 
 
 def test_folder_holds_phone_as_whole_video_tracked(captured):

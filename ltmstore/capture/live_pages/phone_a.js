@@ -104,10 +104,13 @@ async function switchTorchOn() {
  * clock) at which it was captured, or null where the video has no size yet or no frame came
  * within FRAME_WAIT_MS. The frame is drawn in its own callback: drawn later, a frame that
  * arrived in between (a loaded machine) was sent with its predecessor's time, one frame
- * interval early. Where the browser has that callback, a frame is never sent with a guessed
- * time: without it, the time the page gave up waiting would place a frame that arrived late
- * (a loaded machine) where the LED was a few hundred ms later. Without the callback, the
- * current frame is drawn every POLL_MS and timed on arrival.
+ * interval early. The camera's own capture time is taken where the browser gives one: the
+ * callback's ``now`` is the compositor's frame time, which a loaded machine delays by up to a
+ * frame interval, and which precedes the capture time of half the frames of Chromium's camera
+ * (so ``now`` cannot bound it). Where the browser has that callback, a frame is never sent
+ * with a guessed time: without it, the time the page gave up waiting would place a frame that
+ * arrived late (a loaded machine) where the LED was a few hundred ms later. Without the
+ * callback, the current frame is drawn every POLL_MS and timed on arrival.
  */
 function nextFrame(video, canvas) {
   const callback = Boolean(video.requestVideoFrameCallback);
@@ -118,8 +121,9 @@ function nextFrame(video, canvas) {
     if (callback) {
       video.requestVideoFrameCallback((now, meta) => {
         clearTimeout(timer);
-        const t = meta && Number.isFinite(meta.captureTime) && meta.captureTime <= now &&
-          meta.captureTime > now - 1000 ? meta.captureTime : now;
+        const arrived = performance.now();
+        const t = meta && Number.isFinite(meta.captureTime) && meta.captureTime <= arrived &&
+          meta.captureTime > arrived - 1000 ? meta.captureTime : now;
         resolve(drawFrame(video, canvas) ? t / 1000 : null);
       });
     }
