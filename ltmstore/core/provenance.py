@@ -49,7 +49,8 @@ def software() -> dict:
 
 def _placement(record: dict) -> dict:
     """Where the surface model placed the object (``ltm info``): the source, the extent used,
-    and the estimate from the capture with its uncertainty (plane units and pixels)."""
+    and the estimate from the capture with its uncertainty (plane units and pixels), its
+    orientation and how the surface model levelled it."""
     found = record.get("estimate") or {}
     out = {"source": record.get("source"), "extent": record.get("extent")}
     if found:
@@ -58,8 +59,8 @@ def _placement(record: dict) -> dict:
                             "sigma_pixels": found.get("sigma_pixels"),
                             "uncertainty_pixels": found.get("uncertainty_pixels"),
                             "support": found.get("support"),
-                            **({"orientation": found["orientation"]}
-                               if "orientation" in found else {})}
+                            **{key: found[key] for key in ("orientation", "levelled")
+                               if key in found}}
     for key in ("disagreement", "reason"):
         if key in record:
             out[key] = record[key]

@@ -421,13 +421,14 @@ def _fit_aligned(square: bool, turn: np.ndarray, rows: np.ndarray, cols: np.ndar
 class MapFit:
     """The frame's map fitted by :func:`fit_map`: ``corners (3, 2)`` and their bootstrap
     replicates ``(B, 3, 2)``, the ``model`` kept, the ``turn`` (signed permutation) nearest the
-    map, the robust fit's ``inliers`` and ``scatter``, and the bootstrap's standard deviation
-    of the turn's angle (radians) of the ``similarity`` fit."""
+    map, the ``pixels`` fitted, the robust fit's ``inliers`` and ``scatter``, and the
+    bootstrap's standard deviation of the turn's angle (radians) of the ``similarity`` fit."""
 
     corners: np.ndarray
     replicates: np.ndarray
     model: str
     turn: np.ndarray
+    pixels: int
     inliers: int
     scatter: float
     angle_sigma: float
@@ -509,8 +510,9 @@ def fit_map(rows: np.ndarray, cols: np.ndarray, positions: np.ndarray, image: tu
         return np.stack([o, o + x[..., :, 0] * wd, o + x[..., :, 1] * h], axis=-2)
 
     return MapFit(corners=corners(origin, lin), replicates=corners(rep_origin, rep_lin),
-                  model=model, turn=turn, inliers=int((w[: len(rows)] > 0).sum()),
-                  scatter=scale, angle_sigma=float(np.std(angles, ddof=1)))
+                  model=model, turn=turn, pixels=len(rows),
+                  inliers=int((w[: len(rows)] > 0).sum()), scatter=scale,
+                  angle_sigma=float(np.std(angles, ddof=1)))
 
 
 def edge_sigma(corners: np.ndarray, replicates: np.ndarray) -> np.ndarray:
@@ -608,6 +610,41 @@ def extent_of(corners: np.ndarray, model: str, turn: np.ndarray) -> dict:
     return dict(zip(CORNERS, (tl, tr, bl), strict=True))
 
 
+def fit_frame(values: np.ndarray, rows: np.ndarray, cols: np.ndarray, image: tuple[int, int],
+              lights: np.ndarray, height: float, *, seed: int = 0) -> tuple[MapFit, float] | None:
+    """The frame's map from the samples of a subset of its pixels (:func:`place_pixels`, then
+    :func:`fit_map` of the half whose profile explains most), and the profile's exponent; the
+    parameters are :func:`estimate_placement`'s. None where fewer than :data:`MIN_PIXELS`
+    pixels have any variation to place."""
+    values = np.asarray(values, float)
+    lights = np.asarray(lights, float)
+    varied = values.std(1) > 1e-6 * max(float(np.abs(values).max()), 1e-30)
+    if varied.sum() < MIN_PIXELS or len(lights) < 4:
+        return None
+    rows, cols, values = np.asarray(rows)[varied], np.asarray(cols)[varied], values[varied]
+    positions, explained, q = place_pixels(values, lights, height)
+    good = explained >= np.quantile(explained, KEEP_QUANTILE)  # the most radial profiles
+    return fit_map(rows[good], cols[good], positions[good], image, seed=seed), q
+
+
+def placement_of(fit: MapFit, image: tuple[int, int], lights: np.ndarray,
+                 profile: float) -> Placement:
+    """The :class:`Placement` of a frame ``image (H, W)`` mapped by ``fit``, with the lights'
+    support of it and the radial ``profile``'s exponent."""
+    sigma = edge_sigma(fit.corners, fit.replicates)
+    _, lin = pixel_map(fit.corners, image)
+    turn, mirrored = turn_degrees(fit.corners)
+    return Placement(extent=extent_of(fit.corners, fit.model, fit.turn),
+                     sigma={"x": [float(sigma[0]), float(sigma[1])],
+                            "y": [float(sigma[2]), float(sigma[3])]},
+                     pitch=(float(np.hypot(*lin[:, 0])), float(np.hypot(*lin[:, 1]))),
+                     profile=float(profile), pixels=int(fit.pixels), inliers=fit.inliers,
+                     scatter=float(fit.scatter),
+                     support=support(fit.corners, np.asarray(lights, float)),
+                     model=fit.model, turn=turn, turn_sigma=float(np.degrees(fit.angle_sigma)),
+                     mirrored=mirrored)
+
+
 def estimate_placement(values: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                        image: tuple[int, int], lights: np.ndarray, height: float, *,
                        seed: int = 0) -> Placement | None:
@@ -633,24 +670,5 @@ def estimate_placement(values: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     Placement or None
         None where fewer than :data:`MIN_PIXELS` pixels have any variation to place.
     """
-    values = np.asarray(values, float)
-    lights = np.asarray(lights, float)
-    varied = values.std(1) > 1e-6 * max(float(np.abs(values).max()), 1e-30)
-    if varied.sum() < MIN_PIXELS or len(lights) < 4:
-        return None
-    rows, cols, values = np.asarray(rows)[varied], np.asarray(cols)[varied], values[varied]
-    positions, explained, q = place_pixels(values, lights, height)
-    good = explained >= np.quantile(explained, KEEP_QUANTILE)  # the most radial profiles
-    rows, cols, positions = rows[good], cols[good], positions[good]
-    fit = fit_map(rows, cols, positions, image, seed=seed)
-    sigma = edge_sigma(fit.corners, fit.replicates)
-    _, lin = pixel_map(fit.corners, image)
-    turn, mirrored = turn_degrees(fit.corners)
-    return Placement(extent=extent_of(fit.corners, fit.model, fit.turn),
-                     sigma={"x": [float(sigma[0]), float(sigma[1])],
-                            "y": [float(sigma[2]), float(sigma[3])]},
-                     pitch=(float(np.hypot(*lin[:, 0])), float(np.hypot(*lin[:, 1]))),
-                     profile=float(q), pixels=int(len(rows)), inliers=fit.inliers,
-                     scatter=float(fit.scatter), support=support(fit.corners, lights),
-                     model=fit.model, turn=turn, turn_sigma=float(np.degrees(fit.angle_sigma)),
-                     mirrored=mirrored)
+    found = fit_frame(values, rows, cols, image, lights, height, seed=seed)
+    return None if found is None else placement_of(found[0], image, lights, found[1])

@@ -5,8 +5,9 @@ The physical model (:mod:`ltmstore.solve.physical`) needs each pixel's position 
 [left, right], "y": [bottom, top]}``, or, in any orientation, the plane positions of three of
 its corners); when it does not, :func:`place_object` estimates the frame's map to the plane,
 whatever its turn or mirroring, from the binned samples of a few thousand pixels spread over the
-frame (:mod:`ltmstore.solve.placement`). A declared map is checked against the estimate (one
-warning line where they disagree beyond the estimate's uncertainty) and wins.
+frame (:mod:`ltmstore.solve.placement`), then moves it until the surface model's normals are
+level on average (:mod:`ltmstore.solve.level`). A declared map is checked against the estimate
+(one warning line where they disagree beyond the estimate's uncertainty) and wins.
 
 Where the capture cannot place the object (the lights cover too little of it, or the estimate is
 too uncertain to help the model), ``auto`` falls back to the classic methods with one warning
@@ -25,11 +26,14 @@ import zarr
 from ltmstore.core.binning import cell_means
 from ltmstore.core.dims import SAMPLES
 from ltmstore.core.errors import LtmError, LtmWarning
+from ltmstore.solve import Geometry
+from ltmstore.solve.level import level_map
 from ltmstore.solve.placement import (
     Placement,
     edge_offsets,
-    estimate_placement,
+    fit_frame,
     frame_corners,
+    placement_of,
 )
 from ltmstore.stages.plan import TilePlan
 from ltmstore.stages.resample import Binning
@@ -74,16 +78,24 @@ def read_pixels(group: zarr.Group, plan: TilePlan) -> tuple[np.ndarray, np.ndarr
 
 
 def estimate(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray,
-             s: np.ndarray, height: float, *, seed: int = 0) -> Placement | None:
-    """The frame's map estimated from the store's samples (see :mod:`ltmstore.solve.placement`).
-    """
+             s: np.ndarray, geometry: Geometry, *, seed: int = 0
+             ) -> tuple[Placement | None, dict | None]:
+    """The frame's map estimated from the store's samples (see :mod:`ltmstore.solve.placement`),
+    levelled by the surface model (:func:`ltmstore.solve.level.level_map`, at ``geometry``'s
+    lattice, height and beam), and the levelling's record."""
     values, rows, cols = read_pixels(group, plan)
     finite = np.isfinite(values)
     cells = finite.mean(0) >= 0.95  # the cells (nearly) every pixel saw
     pixels = finite[:, cells].all(1)
+    values, rows, cols = values[pixels], rows[pixels], cols[pixels]
     lights = cell_means(binning, r, s)[cells]  # where each cell's samples were taken
-    return estimate_placement(values[np.ix_(pixels, cells)], rows[pixels], cols[pixels],
-                              plan.image, lights, height, seed=seed)
+    found = fit_frame(values[:, cells], rows, cols, plan.image, lights, geometry.height,
+                      seed=seed)
+    if found is None:
+        return None, None
+    fit, level = level_map(values.reshape(len(values), *binning.lattice.shape), rows, cols,
+                           plan.image, found[0], geometry, seed=seed)
+    return placement_of(fit, plan.image, lights, found[1]), level
 
 
 def uncertainty(placement: Placement) -> np.ndarray:
@@ -133,7 +145,8 @@ def describe(extent: dict) -> str:
 
 
 def place_object(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray,
-                 s: np.ndarray, height: float, *, method: str) -> tuple[dict | None, dict]:
+                 s: np.ndarray, height: float, *, method: str,
+                 geometry: Geometry | None = None) -> tuple[dict | None, dict]:
     """The object extent the surface model uses, and the stage record of how it was found.
 
     Parameters
@@ -149,6 +162,10 @@ def place_object(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndar
     method : str
         ``auto`` (an unplaceable object: the classic methods, with a warning) or ``physical``
         (refused).
+    geometry : Geometry, optional
+        The lattice's geometry with the LED's beam and axes, which the estimate is levelled
+        with; None: ``binning``'s lattice at ``height``, where the cells' samples were taken,
+        the LED level and without a beam.
 
     Returns
     -------
@@ -162,8 +179,8 @@ def place_object(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndar
         record: the bootstrap's ``sigma`` per frame edge and ``sigma_pixels``, the full
         ``uncertainty`` per edge (left, right, bottom, top; across the edge) in plane units and
         ``uncertainty_pixels``, the ``orientation``: ``model``, ``turn_degrees``,
-        ``turn_sigma_degrees``, ``mirrored``), and ``disagreement`` or ``reason`` where they
-        apply.
+        ``turn_sigma_degrees``, ``mirrored``; ``levelled``: the levelling's record), and
+        ``disagreement`` or ``reason`` where they apply.
 
     Raises
     ------
@@ -171,12 +188,15 @@ def place_object(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndar
         ``method`` is ``physical``, nothing is declared and the capture cannot place the object.
     """
     declared = group.attrs["acquisition"].get("object")
-    found = estimate(group, plan, binning, r, s, height)
     lights = cell_means(binning, r, s)
+    if geometry is None:
+        geometry = Geometry(lattice=binning.lattice, height=height, sampled=lights)
+    found, level = estimate(group, plan, binning, r, s, geometry)
     lo, hi = np.nanmin(lights, 0), np.nanmax(lights, 0)
     lights_range = f"r {lo[0]:.3g}..{hi[0]:.3g}, s {lo[1]:.3g}..{hi[1]:.3g}"
     why = unsupported(found, lights_range)
-    record: dict = {"estimate": None if found is None else _estimate_record(found)}
+    record: dict = {"estimate": None if found is None else {**_estimate_record(found),
+                                                            "levelled": level}}
     if declared is not None:
         record.update(source="declared", extent=declared)
         if why is None:

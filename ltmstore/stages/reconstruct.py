@@ -829,7 +829,7 @@ def _reconstruct(group: zarr.Group, client: Client, *, lattice, delta_rs, method
                       plan=plan,
                       sampling=sampling, key=key, method=method, params=params, auto=auto,
                       color=color, progress=progress, light_major=light_major, form=form)
-    place = partial(_place, group, plan, binning, r, s, plane, method)
+    place = partial(_place, group, plan, binning, r, s, solve_args["geometry"], method)
     outputs = (ltm_names if form == "dense"
                else [factors.staging_names(n)[i] for n in ltm_names for i in (0, 1)])
     if resume and _resumable(group, key, plan, [*sample_names, *outputs, EXPECTED_ERROR,
@@ -899,16 +899,21 @@ def _segments(group: zarr.Group, binning: Binning) -> tuple[np.ndarray | None, f
 
 
 def _place(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray, s: np.ndarray,
-           plane: Plane, method: str, timings: dict) -> dict:
+           geometry: Geometry, method: str, timings: dict) -> dict:
     """The object extent of the surface model (declared or estimated,
-    :func:`ltmstore.stages.placement.place_object`) and its record; none where the method or a
-    6-D lattice does not use it."""
+    :func:`ltmstore.stages.placement.place_object`, levelled at ``geometry`` with the beam
+    ingest estimated) and its record; none where the method or a 6-D lattice does not use
+    it."""
     if method not in (AUTO, "physical") or len(binning.lattice.shape) != 2:
         return {"extent": None, "placement": None}
     from ltmstore.stages.placement import place_object
 
     start = time.perf_counter()
-    extent, record = place_object(group, plan, binning, r, s, plane.height, method=method)
+    beam = st.stages(group).get("ingest", {}).get("beam") or {}
+    level = replace(geometry, led_exponent=float(beam["exponent"])
+                    if beam.get("source") == "estimated" else 0.0)
+    extent, record = place_object(group, plan, binning, r, s, geometry.height, method=method,
+                                  geometry=level)
     timings["placement_s"] = time.perf_counter() - start
     return {"extent": extent, "placement": record}
 

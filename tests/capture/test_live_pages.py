@@ -129,7 +129,7 @@ def test_folder_holds_phone_as_whole_video_tracked(captured):
     assert (captured["folder"] / "phone_a.webm").is_file()
     assert a["recording"]["recorded"] == a["recording"]["acked"] >= 4
     assert finish["placed_frames"] == len(poses) >= 0.9 * finish["frames"]
-    assert len(poses) > len(path) and np.all(np.diff(poses.t) > 0)  # live: 3-8 frames per s
+    assert len(poses) >= len(path) and np.all(np.diff(poses.t) > 0)  # live: 3-15 frames per s
     assert np.median(np.diff(poses.t)) == pytest.approx(1 / 15, abs=5e-3)  # its own times
     dense = np.column_stack([poses.t, poses.r, poses.s, poses.z])
     shift = best_shift(path, dense)

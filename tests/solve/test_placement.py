@@ -114,6 +114,7 @@ def test_reconstruct_without_object_uses_the_estimate(placed_store):
     assert summary["complete"] and "damaged" not in summary
     assert summary["placement"]["source"] == "estimated"
     assert summary["placement"]["estimated"]["sigma_pixels"] == estimate["sigma_pixels"]
+    assert summary["placement"]["estimated"]["levelled"] == estimate["levelled"]
     assert object_extent(group.attrs.asdict()) == placed["extent"]
 
 
@@ -166,7 +167,7 @@ def test_a_capture_that_cannot_place_the_object_falls_back(one_sided_store, clie
     from ltmstore.stages.placement import PlacementWarning
     from ltmstore.stages.reconstruct import reconstruct
 
-    with pytest.warns(PlacementWarning, match=r"cover 10% of the estimated extent, at least "
+    with pytest.warns(PlacementWarning, match=r"cover 11% of the estimated extent, at least "
                                               r"25% needed; the surface model is left out"):
         info = reconstruct(one_sided_store, client=client, lattice=(16, 16), progress=False)
     assert info["placement"]["source"] == "none" and info["placement"]["extent"] is None
@@ -178,7 +179,7 @@ def test_physical_by_name_is_refused_where_the_object_cannot_be_placed(one_sided
     from ltmstore.stages.reconstruct import reconstruct
 
     with pytest.raises(LtmError, match=r"cannot be estimated from this capture: the lights "
-                                       r"\(r -0\.\d+\.\.-0\.0\d+, .*cover 10%.*declare it in "
+                                       r"\(r -0\.\d+\.\.-0\.0\d+, .*cover 11%.*declare it in "
                                        r"acquisition.json"):
         reconstruct(one_sided_store, client=client, lattice=(16, 16), method="physical",
                     progress=False)
