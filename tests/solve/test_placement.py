@@ -102,8 +102,9 @@ def test_reconstruct_without_object_uses_the_estimate(placed_store):
     assert placed["source"] == "estimated"
     assert info["methods_per_tile"] == {"physical": 1}  # the surface model, as when declared
     err = np.abs(_edges(placed["extent"]) - _edges(TRUE))
-    # measured 20.5 mm (3.3 px): at 32 px the relief's 8 mm frame is mostly bevel, its inward
-    # tilt pulls the edges in; a flipped axis or a doubled side is 100-200 mm off
+    # measured 10.6 mm (1.7 px; 20.5 mm before the levelling): at 32 px the relief's 8 mm
+    # frame is mostly bevel, its inward tilt pulls the edges in; a flipped axis or a doubled
+    # side is 100-200 mm off
     assert err.max() < 0.025, placed["extent"]
     assert placed["extent"]["x"][0] < 0 < placed["extent"]["x"][1]
     estimate = placed["estimate"]
