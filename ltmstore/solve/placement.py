@@ -344,15 +344,20 @@ def _robust_fit(design: np.ndarray, target: np.ndarray, start: np.ndarray
 def _bootstrap(design: np.ndarray, target: np.ndarray, weights: np.ndarray, block: np.ndarray,
                rng: np.random.Generator) -> np.ndarray:
     """Weighted least-squares parameters over :data:`BOOTSTRAP` resamplings of whole image
-    blocks (the robust weights held fixed)."""
+    blocks (the robust weights held fixed): each block's normal equations summed once, then
+    each resampling's as the blocks it draws, solved (minimum norm, as ``lstsq``)."""
     n_blocks = int(block.max()) + 1
     both = np.concatenate([block, block])
-    out = []
-    for _ in range(BOOTSTRAP):
-        times = np.bincount(rng.integers(0, n_blocks, n_blocks), minlength=n_blocks)
-        sw = np.sqrt(weights * times[both])
-        out.append(np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0])
-    return np.array(out)
+    weighted = design * weights[:, None]
+    k = design.shape[1]
+    gram = np.zeros((n_blocks, k, k))
+    np.add.at(gram, both, weighted[:, :, None] * design[:, None, :])
+    moment = np.zeros((n_blocks, k))
+    np.add.at(moment, both, weighted * target[:, None])
+    times = np.array([np.bincount(rng.integers(0, n_blocks, n_blocks), minlength=n_blocks)
+                      for _ in range(BOOTSTRAP)], float)
+    return (np.linalg.pinv(np.einsum("rb,bij->rij", times, gram))
+            @ (times @ moment)[..., None])[..., 0]
 
 
 def _aligned_design(rows: np.ndarray, cols: np.ndarray, square: bool) -> np.ndarray:

@@ -310,7 +310,7 @@ def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
     from what the axis's wobble measured (:func:`ltmstore.stages.surface.wobble_exponent`)."""
     if extent is None:
         return geometry, None
-    beam = st.stages(group).get("ingest", {}).get("beam") or {}
+    beam = _ingest_beam(group)
     estimated = beam.get("source") == "estimated"
     if estimated and geometry.led_axis is None:
         k = float(beam["exponent"])
@@ -324,6 +324,11 @@ def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
     else:
         k, record = sf.choose_led_exponent(batch, placed, default=sf.wobble_exponent(beam))
     return replace(geometry, led_exponent=k), record
+
+
+def _ingest_beam(group: zarr.Group) -> dict:
+    """Ingest's record of the LED's beam (``source``, ``exponent``...; empty where none)."""
+    return st.stages(group).get("ingest", {}).get("beam") or {}
 
 
 def plan_rows(plan: TilePlan, ty: int, tx: int) -> tuple[tuple[int, int], tuple[int, int]]:
@@ -909,7 +914,7 @@ def _place(group: zarr.Group, plan: TilePlan, binning: Binning, r: np.ndarray, s
     from ltmstore.stages.placement import place_object
 
     start = time.perf_counter()
-    beam = st.stages(group).get("ingest", {}).get("beam") or {}
+    beam = _ingest_beam(group)
     level = replace(geometry, led_exponent=float(beam["exponent"])
                     if beam.get("source") == "estimated" else 0.0)
     extent, record = place_object(group, plan, binning, r, s, geometry.height, method=method,

@@ -10,9 +10,9 @@ import shutil
 import numpy as np
 import pytest
 import zarr
+from placement_helpers import placement_inputs
 
 from ltmstore.core.binning import cell_means
-from ltmstore.core.dims import Lattice
 from ltmstore.solve import Geometry
 from ltmstore.solve.level import level_map
 from ltmstore.solve.placement import fit_frame, frame_corners
@@ -29,9 +29,7 @@ def unlit_side(tmp_path_factory, dask_cluster):
     from distributed import Client
 
     from ltmstore.stages.ingest import ingest
-    from ltmstore.stages.plan import plan_tiles
     from ltmstore.stages.reconstruct import reconstruct
-    from ltmstore.stages.resample import bin_positions
     from ltmstore.synthetic.simulate import simulate_acquisition
 
     work = tmp_path_factory.mktemp("level")
@@ -48,12 +46,7 @@ def unlit_side(tmp_path_factory, dask_cluster):
     group["pose_valid"][:] = group["pose_valid"][:] & (group["pose_r"][:] < LIT_BELOW_R)
     with Client(dask_cluster) as client:  # the samples binned (cubic: no placement needed)
         reconstruct(store, client=client, lattice=(16, 16), method="cubic", progress=False)
-    group = zarr.open_group(store, mode="r+")
-    rec = group.attrs["stages"]["resample"]["lattice"]
-    lat = Lattice(bounds=tuple(map(tuple, rec["bounds"])), shape=tuple(rec["shape"]))
-    r, s = group["pose_r"][:], group["pose_s"][:]
-    binning = bin_positions(lat, (r, s), group["pose_valid"][:])
-    return group, plan_tiles(group["frames"].shape[1:], lat.shape, tile=32), binning, r, s
+    return placement_inputs(store)
 
 
 def _corner_errors(corners: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ import warnings
 import numpy as np
 import pytest
 import zarr
+from placement_helpers import placement_inputs
 
 from ltmstore.core.dims import Lattice, Plane, object_extent
 from ltmstore.core.errors import LtmError
@@ -119,25 +120,12 @@ def test_reconstruct_without_object_uses_the_estimate(placed_store):
     assert object_extent(group.attrs.asdict()) == placed["extent"]
 
 
-def _placement_inputs(store):
-    from ltmstore.stages.plan import plan_tiles
-    from ltmstore.stages.resample import bin_positions
-
-    group = zarr.open_group(store, mode="r+")
-    rec = group.attrs["stages"]["resample"]["lattice"]
-    lat = Lattice(bounds=tuple(map(tuple, rec["bounds"])), shape=tuple(rec["shape"]))
-    r, s = group["pose_r"][:], group["pose_s"][:]
-    binning = bin_positions(lat, (r, s), group["pose_valid"][:])
-    plan = plan_tiles(group["frames"].shape[1:], lat.shape, tile=32)
-    return group, plan, binning, r, s
-
-
 def test_a_declared_extent_that_disagrees_is_warned_about_and_used(placed_store, tmp_path):
     from ltmstore.stages.placement import PlacementWarning, place_object
 
     store = tmp_path / "store.zarr"
     shutil.copytree(placed_store[0], store)
-    group, plan, binning, r, s = _placement_inputs(store)
+    group, plan, binning, r, s = placement_inputs(store)
     wrong = {"x": [-0.2, 0.0], "y": [-0.1, 0.1]}  # shifted by the object's half width
     group.attrs["acquisition"] = {**group.attrs["acquisition"], "object": wrong}
     with pytest.warns(PlacementWarning, match=r"disagrees .* left edge by 0\.1\d* plane units"):

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 import zarr
+from placement_helpers import placement_inputs
 
 from ltmstore.core.dims import object_pixels
 from ltmstore.core.store import complete_stage
@@ -99,20 +100,6 @@ def plain_run(plain_acquisition, tmp_path_factory, dask_cluster):
         return _run(plain_acquisition, tmp_path_factory.mktemp("plain_run"), client)
 
 
-def _placement_inputs(store: Path):
-    from ltmstore.core.dims import Lattice
-    from ltmstore.stages.plan import plan_tiles
-    from ltmstore.stages.resample import bin_positions
-
-    group = zarr.open_group(store, mode="r+")
-    rec = group.attrs["stages"]["resample"]["lattice"]
-    lat = Lattice(bounds=tuple(map(tuple, rec["bounds"])), shape=tuple(rec["shape"]))
-    r, s = group["pose_r"][:], group["pose_s"][:]
-    binning = bin_positions(lat, (r, s), group["pose_valid"][:])
-    plan = plan_tiles(group["frames"].shape[1:], lat.shape, tile=32)
-    return group, plan, binning, r, s
-
-
 def test_the_placement_finds_every_orientation(plain_run, tmp_path_factory):
     """The capture's samples oriented all eight ways (as oriented frames bin): the estimated
     map is the unturned estimate oriented alike, and the turn and mirror are named."""
@@ -125,7 +112,7 @@ def test_the_placement_finds_every_orientation(plain_run, tmp_path_factory):
     found = set()
     copy = tmp_path_factory.mktemp("samples") / "store.zarr"
     shutil.copytree(source, copy)
-    group, plan, binning, r, s = _placement_inputs(copy)
+    group, plan, binning, r, s = placement_inputs(copy)
     for turns, mirrored in ORIENTATIONS:
         group["samples"][...] = orient(samples, turns, mirrored)
         extent, record = place_object(group, plan, binning, r, s, 0.3, method="auto")
