@@ -89,6 +89,8 @@ BENCHMARKS = {
                              "error by type, LTM error on observed and filled cells"),
     "codec_bitrate": Benchmark("codec_bitrate.py", "camera B's H.264 by its bits per pixel: "
                                "LTM SNR_Y against the uncompressed video's"),
+    "codec_noise": Benchmark("codec_noise.py", "camera B's H.264 error rearranged between "
+                             "frames: shared within a second against scattered"),
     "capture_latency": Benchmark("capture_latency.py", "ltm capture: tracking time, frames per "
                                  "second"),
     "capture_screenshots": Benchmark("capture_screenshots.py", "the ltm capture pages in "
