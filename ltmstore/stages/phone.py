@@ -46,7 +46,12 @@ from ltmstore.core.dims import Plane, rgb_to_ycbcr
 from ltmstore.core.errors import LtmError, LtmWarning
 from ltmstore.core.transfer import linearise
 from ltmstore.stages.ambient import ambient_floor, ambient_image
-from ltmstore.stages.drift import DriftEstimate, beam_log_ratio, estimate_drift
+from ltmstore.stages.drift import (
+    DriftEstimate,
+    beam_log_ratio,
+    estimate_beam,
+    estimate_drift,
+)
 from ltmstore.stages.frames import Lights
 from ltmstore.stages.occlusion import occluded_frames
 
@@ -187,7 +192,12 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
     record = {"undistort": None if undistort is None else undistort.to_json(),
               "ambient": ambient_record, "drift": drift_record}
     if beam is not None:
-        record["beam"] = _beam_record(drift, lights)
+        measured = (None if drift is None or drift.beam_exponent is None
+                    else (drift.beam_exponent, drift.beam_stderr))
+        if gains is None and drift is not None:  # a constant gain: the beam without its knots
+            measured = estimate_beam(scan.blocks, lights.r, lights.s, lights.z, drift.lit,
+                                     plane, beam)
+        record["beam"] = _beam_record(measured, lights)
     return Corrections(undistort, per_frame, ambient, lead_end, record)
 
 
@@ -199,14 +209,14 @@ def _object_guess(plane: Plane) -> tuple[tuple[float, float], tuple[float, float
     return (half(*plane.r), half(*plane.s))
 
 
-def _beam_record(drift: DriftEstimate | None, lights: Lights) -> dict:
-    """The LED's beam: its exponent (estimated from the frames, or the profile's where they
-    cannot tell it to :data:`BEAM_MAX_STDERR`) and the RMS tilt of its axis from straight down
-    over the frames the poses cover."""
-    estimated = None if drift is None else drift.beam_exponent
+def _beam_record(measured: tuple[np.ndarray, np.ndarray] | None, lights: Lights) -> dict:
+    """The LED's beam: its exponent (``measured`` from the frames per channel, with standard
+    errors; the profile's where they cannot tell it to :data:`BEAM_MAX_STDERR`) and the RMS
+    tilt of its axis from straight down over the frames the poses cover."""
+    estimated = None if measured is None else measured[0]
     k, stderr, source = BEAM_PROFILE_EXPONENT, None, "profile"
     if estimated is not None:
-        stderr = float(np.mean(drift.beam_stderr))
+        stderr = float(np.mean(measured[1]))
         # 0: the beam's term was all zeros (the LED held level), which tells nothing of k
         if 0 < stderr <= BEAM_MAX_STDERR:
             k, source = float(np.clip(np.mean(estimated), *BEAM_EXPONENT_RANGE)), "estimated"

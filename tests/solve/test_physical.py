@@ -165,7 +165,9 @@ def test_it_is_fitted_where_the_samples_were_taken(regimes):
     """A cell's sample is the mean of frames anywhere inside it: rendered here at positions up
     to 0.4 cell off the centres (the LED's cos^2 beam steepens the fall-off), fitted there and
     evaluated at the centres. Measured: 41.1 dB against 32.5 when fitted at the centres (on
-    the 720 px simulated canvas the same change gained 2.7 dB, 4.0 with the beam)."""
+    the 720 px simulated canvas the same change gained 2.7 dB, 4.0 with the beam). The fit's
+    compiled kernel converges a little differently with the CPU's vector width: 41.10 dB
+    compiled for AVX2 (``NUMBA_CPU_NAME=haswell``), 40.42 for AVX-512, 40.72 in NumPy."""
     from dataclasses import replace
 
     r = regimes["benign"]
@@ -183,4 +185,4 @@ def test_it_is_fitted_where_the_samples_were_taken(regimes):
     samples = samples.reshape(r.samples.shape)
     fitted = snr_db(truth, physical.solve(samples, at))
     centred = snr_db(truth, physical.solve(samples, replace(at, sampled=None)))
-    assert fitted > 40.5 and fitted > centred + 7, (fitted, centred)
+    assert fitted > 40.0 and fitted > centred + 7, (fitted, centred)
