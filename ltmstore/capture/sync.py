@@ -243,8 +243,8 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
     reach = FINE_WINDOW * step
     fine = np.arange(taus[k] - reach, taus[k] + reach + FINE_STEP / 2, FINE_STEP)
     beams = BEAM_EXPONENTS if poses.axis is not None else (0.0,)
-    fits = [_fine(OffsetCost(brightness, fps, poses, skip_frames, beam, centre), fine)
-            for beam in beams]
+    fits = [_fine(OffsetCost(brightness, fps, poses, skip_frames, beam, centre) if beam
+                  else cost, fine) for beam in beams]  # the coarse stage's cost has no beam
     beam = int(np.argmin([f[1] for f in fits]))
     tau, best, used, fine_costs = fits[beam]
     # standard error: RSS(tau) ~ RSS_min (1 + curv/2 dtau^2); var(tau) = 2 sigma^2 / RSS''

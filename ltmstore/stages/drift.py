@@ -127,9 +127,7 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
         None when fewer than :data:`MIN_FRAMES` frames are lit, or fewer than :data:`MIN_DOF`
         beyond the parameters of the model (a short path: its misfit would be noise).
     """
-    lit = np.asarray(lit, dtype=bool) & np.isfinite(r) & np.isfinite(s) & np.isfinite(z)
-    if beam is not None:
-        lit &= np.isfinite(beam)
+    lit = _usable(lit, r, s, z, beam)
     if lit.sum() < MIN_FRAMES:
         return None
     knots = _knots(t[lit])
@@ -177,8 +175,7 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
     (``log F[i, b] = f_b(r_i, s_i, z_i) + k * beam_i``). Arguments as there; None where fewer
     than :data:`MIN_FRAMES` frames are lit or the beam's term is all zeros (the LED held
     level)."""
-    lit = (np.asarray(lit, dtype=bool) & np.isfinite(r) & np.isfinite(s) & np.isfinite(z)
-           & np.isfinite(beam))
+    lit = _usable(lit, r, s, z, beam)
     if lit.sum() < MIN_FRAMES:
         return None
     q = scipy.linalg.orth(_position_basis(r[lit], s[lit], z[lit], plane))
@@ -217,6 +214,13 @@ def beam_log_ratio(r: np.ndarray, s: np.ndarray, z: np.ndarray, axis: np.ndarray
     with np.errstate(invalid="ignore", divide="ignore"):
         logs = np.where(ratio > 0, np.log(np.where(ratio > 0, ratio, 1.0)), np.nan)
     return logs.mean(axis=1)
+
+
+def _usable(lit: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarray,
+            beam: np.ndarray | None) -> np.ndarray:
+    """The ``lit`` frames whose light position (and beam term, where given) is known."""
+    usable = np.asarray(lit, dtype=bool) & np.isfinite(r) & np.isfinite(s) & np.isfinite(z)
+    return usable if beam is None else usable & np.isfinite(beam)
 
 
 def _mean_log(values: np.ndarray) -> np.ndarray:

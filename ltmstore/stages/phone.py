@@ -192,11 +192,13 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
     record = {"undistort": None if undistort is None else undistort.to_json(),
               "ambient": ambient_record, "drift": drift_record}
     if beam is not None:
-        measured = (None if drift is None or drift.beam_exponent is None
-                    else (drift.beam_exponent, drift.beam_stderr))
-        if gains is None and drift is not None:  # a constant gain: the beam without its knots
+        if drift is None:
+            measured = None
+        elif gains is None:  # a constant gain: the beam measured without the gain's knots
             measured = estimate_beam(scan.blocks, lights.r, lights.s, lights.z, drift.lit,
                                      plane, beam)
+        else:
+            measured = drift.beam_exponent, drift.beam_stderr
         record["beam"] = _beam_record(measured, lights)
     return Corrections(undistort, per_frame, ambient, lead_end, record)
 
