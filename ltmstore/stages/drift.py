@@ -22,11 +22,9 @@ relative to that of the LED held level, over the object, per frame) enters the m
 more term ``k * beam_i``, common to all blocks, with ``k`` (the beam's exponent) estimated
 jointly. The level beam's part is a function of the position alone, the painting's as before
 (a regressor holding it too took up the position model's misfit: ``k`` came out 0.8-1.0 on
-frames with no beam at all). Where the gain turns out constant (no drift to correct),
-:func:`estimate_beam` measures ``k`` again without the gain's knots, which had taken up the
-wobble's slower part: on a simulated 720 px canvas with a ``cos^2`` beam, 1.81 +- 0.19 with the
-true poses and 1.92 +- 0.19 with the tracked ones, against 2.35 +- 0.73 and 2.74 +- 0.62 jointly
-with the knots.
+frames with no beam at all). That ``k`` is the drift's nuisance: the beam itself is measured
+across the frame (:mod:`ltmstore.stages.led_beam`), where the gain and the codec's shared errors
+do not reach.
 
 Limits: a gain that follows the light position with no lag (an auto-exposure reacting
 instantly to the frame's brightness) is indistinguishable from the painting itself, and is not
@@ -135,7 +133,7 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
     extra = np.zeros((len(t), 0)) if beam is None else np.nan_to_num(beam)[:, None]
     m_all = np.column_stack([_hats_1d(t, knots), extra])  # knots, then the beam term
     m = m_all[lit]
-    q = scipy.linalg.orth(_position_basis(r[lit], s[lit], z[lit], plane))  # the hats visited
+    q = scipy.linalg.orth(position_basis(r[lit], s[lit], z[lit], plane))  # the hats visited
     dof = int(lit.sum()) - q.shape[1] - m.shape[1]
     if dof < MIN_DOF:
         return None
@@ -165,33 +163,6 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
                          residual=float(np.sqrt(np.mean(residuals))),
                          beam_exponent=None if beam is None else exponent,
                          beam_stderr=None if beam is None else exponent_se)
-
-
-def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarray,
-                  lit: np.ndarray, plane: Plane, beam: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The beam's exponent per colour channel ``(3,)`` and its standard error ``(3,)`` where
-    camera B's gain is constant: the model of :func:`estimate_drift` without the gain's knots
-    (``log F[i, b] = f_b(r_i, s_i, z_i) + k * beam_i``). Arguments as there; None where fewer
-    than :data:`MIN_FRAMES` frames are lit or the beam's term is all zeros (the LED held
-    level)."""
-    lit = _usable(lit, r, s, z, beam)
-    if lit.sum() < MIN_FRAMES:
-        return None
-    q = scipy.linalg.orth(_position_basis(r[lit], s[lit], z[lit], plane))
-    dof = int(lit.sum()) - q.shape[1] - 1
-    b = beam[lit] - q @ (q.T @ beam[lit])
-    norm = float(b @ b)
-    if dof < MIN_DOF or norm <= 0:
-        return None
-    exponent, stderr = np.zeros(3), np.zeros(3)
-    for c in range(3):
-        y = _mean_log(blocks[lit, :, c])
-        y = y - q @ (q.T @ y)
-        exponent[c] = float(b @ y) / norm
-        resid = y - exponent[c] * b
-        stderr[c] = np.sqrt(float(resid @ resid) / dof / norm)
-    return exponent, stderr
 
 
 def beam_log_ratio(r: np.ndarray, s: np.ndarray, z: np.ndarray, axis: np.ndarray,
@@ -243,7 +214,7 @@ def _hats_1d(u: np.ndarray, knots: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(u, knots, row) for row in eye], axis=1)
 
 
-def _position_basis(r: np.ndarray, s: np.ndarray, z: np.ndarray, plane: Plane) -> np.ndarray:
+def position_basis(r: np.ndarray, s: np.ndarray, z: np.ndarray, plane: Plane) -> np.ndarray:
     """Bilinear hats on a :data:`POSITION_GRID` grid over the plane, and ``z`` (centred)."""
     hr = _hats_1d(r, np.linspace(*plane.r, POSITION_GRID))
     hs = _hats_1d(s, np.linspace(*plane.s, POSITION_GRID))

@@ -49,10 +49,10 @@ from ltmstore.stages.ambient import ambient_floor, ambient_image
 from ltmstore.stages.drift import (
     DriftEstimate,
     beam_log_ratio,
-    estimate_beam,
     estimate_drift,
 )
 from ltmstore.stages.frames import Lights
+from ltmstore.stages.led_beam import estimate_beam
 from ltmstore.stages.occlusion import occluded_frames
 
 BLOCK_GRID = 8
@@ -192,15 +192,19 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
     record = {"undistort": None if undistort is None else undistort.to_json(),
               "ambient": ambient_record, "drift": drift_record}
     if beam is not None:
-        if drift is None:
-            measured = None
-        elif gains is None:  # a constant gain: the beam measured without the gain's knots
-            measured = estimate_beam(scan.blocks, lights.r, lights.s, lights.z, drift.lit,
-                                     plane, beam)
-        else:
-            measured = drift.beam_exponent, drift.beam_stderr
+        measured = estimate_beam(_without_room_light(scan.blocks, lead), lights.r, lights.s,
+                                 lights.z, lights.axis, lit, plane, _object_guess(plane))
         record["beam"] = _beam_record(measured, lights)
     return Corrections(undistort, per_frame, ambient, lead_end, record)
+
+
+def _without_room_light(blocks: np.ndarray, lead: Lead | None) -> np.ndarray:
+    """Camera B's block means ``(n, B, 3)`` less the room light's, where the LED-off ``lead``
+    measured it: a constant added to each block flattens the log brightness's response to
+    the beam, and an exponent fitted to it comes out low."""
+    if lead is None:
+        return blocks
+    return blocks - blocks[slice(*lead.ambient)].mean(axis=0)
 
 
 def _object_guess(plane: Plane) -> tuple[tuple[float, float], tuple[float, float]]:
