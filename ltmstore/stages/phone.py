@@ -12,13 +12,14 @@ and more a side, over every second pixel of every second row:
   determined to correct;
 * where the poses give phone A's LED axis (``axis_r, axis_s, axis_z``), the LED's ``cos^k``
   beam (over the plane's central half, where the frame is taken to lie) enters the drift
-  model, so that a hand's wobble is not read as drift, and its exponent ``k`` is estimated
-  from the frames and recorded (``beam``; :data:`BEAM_PROFILE_EXPONENT` where they cannot
-  tell). The frames are not divided by the beam here: at the object's centre (all ingest knows
-  of the pixels' places) that brought the frames of a 64 px canvas with a 3 degree wobble
-  nearer those of a level LED (RMS 4.4 -> 2.3 %) but the LTM's SNR_Y down by 1.4 dB (26.9 ->
-  25.5; a level LED: 27.0). The axis is stored instead (``pose_axis_*``), and the
-  reconstruction's surface model, which knows each pixel's place under the light, fits each
+  model, so that a hand's wobble is not read as drift, and its exponent ``k`` is measured from
+  how the wobble moves light across the frame (:mod:`ltmstore.stages.led_beam`, the room light
+  taken off first) and recorded (``beam``; :data:`BEAM_PROFILE_EXPONENT` where the frames
+  cannot tell). The frames are not divided by the beam here: at the object's centre (all
+  ingest knows of the pixels' places) that brought the frames of a 64 px canvas with a 3
+  degree wobble nearer those of a level LED (RMS 4.4 -> 2.3 %) but the LTM's SNR_Y down by
+  1.4 dB (26.9 -> 25.5; a level LED: 27.0). The axis is stored instead (``pose_axis_*``), and
+  the reconstruction's surface model, which knows each pixel's place under the light, fits each
   lattice cell's beam about the mean axis of its frames.
 
 Each frame is then, in linear light: undistorted (:mod:`ltmstore.capture.undistort`), divided by
