@@ -68,8 +68,9 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
     Returns
     -------
     (exponent, stderr) or None
-        None where fewer than :data:`~ltmstore.stages.drift.MIN_FRAMES` frames are usable or
-        the model leaves fewer than :data:`~ltmstore.stages.drift.MIN_DOF` degrees of freedom.
+        None where fewer than :data:`~ltmstore.stages.drift.MIN_FRAMES` frames are usable, the
+        model leaves fewer than :data:`~ltmstore.stages.drift.MIN_DOF` degrees of freedom, or
+        fewer than two blocks are bright enough.
         The standard error treats each frame's blocks as one draw (their errors, the codec's
         included, may be shared).
     """
@@ -81,6 +82,8 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
     if int(use.sum()) - q.shape[1] - 1 < MIN_DOF:
         return None
     keep = _bright_blocks(blocks[use])
+    if keep.sum() < 2:  # a frame's mean over one block takes all of it
+        return None
     lit_blocks = blocks[use][:, keep]
     floor = MIN_RELATIVE * np.median(lit_blocks, axis=0)  # the room light's noise taken off
     logs = [_centred(np.log(np.maximum(lit_blocks[..., c], floor[:, c])), q) for c in range(3)]

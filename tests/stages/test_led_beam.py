@@ -121,6 +121,7 @@ def test_the_beam_is_measured_across_the_frame(capture):
                                atol=1e-9)
     # no beam: measured 0.07, 0.12, 0.01
     assert np.all(np.abs(estimate_beam(scan.blocks * flicker, *args)[0]) < 0.15)
+    assert estimate_beam(np.zeros_like(beamed), *args) is None  # nothing lit: nothing said
 
 
 @pytest.fixture(scope="module")
