@@ -125,7 +125,9 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
         None when fewer than :data:`MIN_FRAMES` frames are lit, or fewer than :data:`MIN_DOF`
         beyond the parameters of the model (a short path: its misfit would be noise).
     """
-    lit = _usable(lit, r, s, z, beam)
+    lit = np.asarray(lit, dtype=bool) & np.isfinite(r) & np.isfinite(s) & np.isfinite(z)
+    if beam is not None:
+        lit &= np.isfinite(beam)
     if lit.sum() < MIN_FRAMES:
         return None
     knots = _knots(t[lit])
@@ -168,30 +170,27 @@ def estimate_drift(blocks: np.ndarray, t: np.ndarray, r: np.ndarray, s: np.ndarr
 def beam_log_ratio(r: np.ndarray, s: np.ndarray, z: np.ndarray, axis: np.ndarray,
                    extent: tuple[tuple[float, float], tuple[float, float]],
                    grid: int = 8) -> np.ndarray:
-    """The LED's beam about ``axis`` ``(n, 3)`` relative to the LED held level (axis straight
-    down), per frame: the mean over a ``grid x grid`` of points over the object rectangle
-    ``extent`` (``((r0, r1), (s0, s1))`` at height 0) of ``log(cos a / cos a0)``, ``a`` and
-    ``a0`` the angles between the two axes and the direction from the LED at ``(r, s, z)`` to
-    the point (NaN where the LED points away from a point). Its exponent times this is the
-    beam's term in the mean log brightness over the frame's blocks that is not a function of
-    the light's position (the level beam's part is, and the painting's model holds it)."""
+    """The LED's beam about ``axis`` ``(n, 3)`` relative to the LED held level, per frame: the
+    mean of :func:`beam_log_ratios` over a ``grid x grid`` of points over the object rectangle
+    ``extent`` (``((r0, r1), (s0, s1))`` at height 0). Its exponent times this is the beam's
+    term in the mean log brightness over the frame's blocks that is not a function of the
+    light's position (the level beam's part is, and the painting's model holds it)."""
     (r0, r1), (s0, s1) = extent
     u = (np.arange(grid) + 0.5) / grid
     pr, ps = np.meshgrid(r0 + (r1 - r0) * u, s0 + (s1 - s0) * u)
-    d = np.stack([pr.ravel()[None] - np.asarray(r)[:, None],
-                  ps.ravel()[None] - np.asarray(s)[:, None],
-                  np.broadcast_to(-np.asarray(z)[:, None], (len(r), pr.size))], -1)
+    return beam_log_ratios(r, s, z, axis, pr.ravel(), ps.ravel()).mean(axis=1)
+
+
+def beam_log_ratios(r: np.ndarray, s: np.ndarray, z: np.ndarray, axis: np.ndarray,
+                    pr: np.ndarray, ps: np.ndarray) -> np.ndarray:
+    """``(n, P)``: ``log(cos a / cos a0)`` from the LED at ``(r, s, z)`` to each point
+    ``(pr, ps, 0)``, ``a`` and ``a0`` the angles between the direction to the point and the
+    LED's ``axis`` ``(n, 3)`` or straight down (NaN where the LED points away from a point)."""
+    d = np.stack([pr[None] - np.asarray(r)[:, None], ps[None] - np.asarray(s)[:, None],
+                  np.broadcast_to(-np.asarray(z)[:, None], (len(r), len(pr)))], -1)
     ratio = np.einsum("npj,nj->np", d, axis) / -d[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
-        logs = np.where(ratio > 0, np.log(np.where(ratio > 0, ratio, 1.0)), np.nan)
-    return logs.mean(axis=1)
-
-
-def _usable(lit: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarray,
-            beam: np.ndarray | None) -> np.ndarray:
-    """The ``lit`` frames whose light position (and beam term, where given) is known."""
-    usable = np.asarray(lit, dtype=bool) & np.isfinite(r) & np.isfinite(s) & np.isfinite(z)
-    return usable if beam is None else usable & np.isfinite(beam)
+        return np.where(ratio > 0, np.log(np.where(ratio > 0, ratio, 1.0)), np.nan)
 
 
 def _mean_log(values: np.ndarray) -> np.ndarray:

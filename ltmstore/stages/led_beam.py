@@ -34,9 +34,15 @@ import numpy as np
 import scipy.linalg
 
 from ltmstore.core.dims import Plane
-from ltmstore.stages.drift import MIN_BLOCK_FRACTION, MIN_DOF, MIN_FRAMES, position_basis
+from ltmstore.stages.drift import (
+    MIN_BLOCK_FRACTION,
+    MIN_DOF,
+    MIN_FRAMES,
+    beam_log_ratios,
+    position_basis,
+)
 
-MIN_COS = 1e-3  # the beam's cosine towards a block is floored here (the LED pointing away)
+MIN_COS = 1e-3  # the beam's cosine ratio towards a block the LED points away from
 MIN_RELATIVE = 0.01  # a block's value is floored at this fraction of its median
 # (reverse the frame's x, reverse its y, swap them): the eight ways the frame may lie on the plane
 ORIENTATIONS = tuple(itertools.product((False, True), repeat=3))
@@ -81,17 +87,19 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
     q = scipy.linalg.orth(position_basis(r[use], s[use], z[use], plane))
     if int(use.sum()) - q.shape[1] - 1 < MIN_DOF:
         return None
-    keep = _bright_blocks(blocks[use])
+    lit_blocks = blocks[use]
+    keep = _bright_blocks(lit_blocks)
     if keep.sum() < 2:  # a frame's mean over one block takes all of it
         return None
-    lit_blocks = blocks[use][:, keep]
+    lit_blocks = lit_blocks[:, keep]
     floor = MIN_RELATIVE * np.median(lit_blocks, axis=0)  # the room light's noise taken off
     logs = [_centred(np.log(np.maximum(lit_blocks[..., c], floor[:, c])), q) for c in range(3)]
     grid = int(round(np.sqrt(blocks.shape[1])))
     fits = []
     for orientation in ORIENTATIONS:
         pr, ps = _block_positions(grid, extent, orientation)
-        beam = _block_beam(r[use], s[use], z[use], axis[use], pr[keep], ps[keep])
+        beam = beam_log_ratios(r[use], s[use], z[use], axis[use], pr[keep], ps[keep])
+        beam = np.where(np.isfinite(beam), beam, np.log(MIN_COS))  # the LED pointing away
         fits.append(_fit(logs, _centred(beam, q)))
     upright = [f for f in fits if np.mean(f[0]) >= 0] or fits
     exponent, stderr, _ = min(upright, key=lambda f: f[2])
@@ -110,17 +118,6 @@ def _block_positions(grid: int, extent: tuple[tuple[float, float], tuple[float, 
         x, y = y, x
     (r0, r1), (s0, s1) = extent
     return (r0 + (r1 - r0) * x).ravel(), (s1 - (s1 - s0) * y).ravel()
-
-
-def _block_beam(r: np.ndarray, s: np.ndarray, z: np.ndarray, axis: np.ndarray,
-                pr: np.ndarray, ps: np.ndarray) -> np.ndarray:
-    """``(n, B)``: the log of the beam's cosine from the LED at ``(r, s, z)`` along ``axis``
-    towards each block at ``(pr, ps, 0)``, less that of the LED held level."""
-    d = np.stack([pr[None] - r[:, None], ps[None] - s[:, None],
-                  np.broadcast_to(-z[:, None], (len(r), len(pr)))], -1)
-    length = np.linalg.norm(d, axis=-1)
-    cos = np.einsum("nbj,nj->nb", d, axis) / length
-    return np.log(np.maximum(cos, MIN_COS) * length / z[:, None])
 
 
 def _bright_blocks(blocks: np.ndarray) -> np.ndarray:

@@ -47,11 +47,7 @@ from ltmstore.core.dims import Plane, rgb_to_ycbcr
 from ltmstore.core.errors import LtmError, LtmWarning
 from ltmstore.core.transfer import linearise
 from ltmstore.stages.ambient import ambient_floor, ambient_image
-from ltmstore.stages.drift import (
-    DriftEstimate,
-    beam_log_ratio,
-    estimate_drift,
-)
+from ltmstore.stages.drift import DriftEstimate, beam_log_ratio, estimate_drift
 from ltmstore.stages.frames import Lights
 from ltmstore.stages.led_beam import estimate_beam
 from ltmstore.stages.occlusion import occluded_frames
@@ -184,8 +180,9 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
     lit = lights.valid if lead_end is None else lights.valid & (scan.index >= lead_end)
     # A hand's shadow is no change of exposure: the frames ingest rejects as occluded stay out.
     lit = lit & ~occluded_frames(scan.brightness, lights.r, lights.s, lights.z, lit)
+    extent = _object_guess(plane)
     beam = None if lights.axis is None else beam_log_ratio(
-        lights.r, lights.s, lights.z, lights.axis, _object_guess(plane))
+        lights.r, lights.s, lights.z, lights.axis, extent)
     drift = estimate_drift(scan.blocks, t, lights.r, lights.s, lights.z, lit, plane, beam=beam)
     gains, drift_record = _drift_decision(drift, exposure_locked=exposure_locked)
     per_frame = None if gains is None else dict(zip(scan.index.tolist(), gains, strict=True))
@@ -194,7 +191,7 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
               "ambient": ambient_record, "drift": drift_record}
     if beam is not None:
         measured = estimate_beam(_without_room_light(scan.blocks, lead), lights.r, lights.s,
-                                 lights.z, lights.axis, lit, plane, _object_guess(plane))
+                                 lights.z, lights.axis, lit, plane, extent)
         record["beam"] = _beam_record(measured, lights)
     return Corrections(undistort, per_frame, ambient, lead_end, record)
 
