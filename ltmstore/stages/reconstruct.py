@@ -305,7 +305,7 @@ def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
     placed by ``extent`` (None: no surface model, no beam), and its record: ingest's
     estimate (poses with the LED's axis, tilted: ingest records an axis held level as the
     profile's, not estimated), refined by held-out error where each cell's axis is known
-    (:func:`ltmstore.stages.surface.refined_exponents`); else the held-out choice of
+    (:func:`ltmstore.stages.surface.refine_led_exponent`); else the held-out choice of
     :func:`ltmstore.stages.surface.choose_led_exponent` on a sample of the image's pixels,
     from what the axis's wobble measured (:func:`ltmstore.stages.surface.wobble_exponent`)."""
     if extent is None:
@@ -317,10 +317,8 @@ def led_beam(group: zarr.Group, plan: TilePlan, geometry: Geometry,
         return replace(geometry, led_exponent=k), {"exponent": k, "source": "ingest"}
     batch, placed = image_sample(group[SAMPLES], plan, geometry, extent)
     if estimated:
-        k, record = sf.choose_led_exponent(
-            batch, placed, default=float(beam["exponent"]), margin=0.0,
-            grid=sf.refined_exponents(float(beam["exponent"]), float(beam["stderr"])))
-        record["source"] = "ingest, refined by held-out error"
+        k, record = sf.refine_led_exponent(batch, placed, float(beam["exponent"]),
+                                           float(beam["stderr"]))
     else:
         k, record = sf.choose_led_exponent(batch, placed, default=sf.wobble_exponent(beam))
     return replace(geometry, led_exponent=k), record

@@ -16,7 +16,12 @@ import pytest
 from ltmstore.core.dims import LUMA
 from ltmstore.judge.evaluate import snr_db
 from ltmstore.solve import physical
-from ltmstore.stages.surface import choose_led_exponent, refined_exponents, wobble_exponent
+from ltmstore.stages.surface import (
+    choose_led_exponent,
+    refine_led_exponent,
+    refined_exponents,
+    wobble_exponent,
+)
 from ltmstore.synthetic.regimes import (
     EXPOSURE_PEAK,
     PLANE,
@@ -142,3 +147,22 @@ def test_the_refined_exponents_lie_about_the_estimate():
     assert refined_exponents(2.0, 0.1) == pytest.approx(np.linspace(1.8, 2.2, 9))
     assert refined_exponents(0.05, 0.1).min() == 0.0  # none below 0
     assert list(refined_exponents(1.5, 0.0)) == [1.5]
+
+
+@pytest.mark.parametrize(("estimate", "refined"), [(1.0, False), (2.4, True), (2.9, False)])
+def test_the_estimate_is_refined_only_where_the_heldout_error_is_lowest_inside(
+        level_beam, estimate, refined):
+    """Ingest's estimate +- 0.1 on the level cos^2 beam's capture, whose held-out error is
+    lowest at k = 2.225. Measured: from 1.0 it falls all the way to the window's top (0.0200
+    at 1.2 against 0.0236 at 1.0) and from 2.9 to its bottom: neither measures k, the estimate
+    stands; from 2.4 it is lowest inside the window (0.00082 at 2.225 against 0.00117)."""
+    r = level_beam
+    k, record = refine_led_exponent(r.samples, r.geometry, estimate, 0.1)
+    assert record["default"] == estimate and record["exponent"] == k, record
+    if refined:
+        assert record["source"] == "ingest, refined by held-out error", record
+        assert k == pytest.approx(2.225) and record["errors"][f"{k:g}"] == min(
+            record["errors"].values()), record
+    else:
+        assert record["source"] == "ingest" and k == estimate, record
+        assert min(record["errors"].values()) < 0.9 * record["errors"][f"{k:g}"], record

@@ -175,8 +175,10 @@ def test_ingest_records_the_beam_and_leaves_the_frames(axis_store):
 
 
 def test_reconstruct_refines_the_exponent_about_each_cells_axis(axis_store, client, tmp_path):
-    """With the axis stored, ingest's exponent is refined by held-out error among those within
-    two of its standard errors, and the surface model takes each cell's mean axis."""
+    """With the axis stored, ingest's exponent is tried against those within two of its
+    standard errors by held-out error, and the surface model takes each cell's mean axis.
+    No beam in these frames: measured, the held-out error falls towards the window's top (within
+    0.2 % from 0 to 0.14), so it measures nothing and ingest's 0.06 +- 0.04 stands."""
     import shutil
 
     import zarr
@@ -190,16 +192,12 @@ def test_reconstruct_refines_the_exponent_about_each_cells_axis(axis_store, clie
     reconstruct(tmp_path / "a.zarr", client=client, lattice=(16, 16), progress=False)
     beam = stages(zarr.open_group(tmp_path / "a.zarr", mode="r"))["reconstruct"]["led_beam"]
     estimate = record["beam"]
-    assert beam["source"] == "ingest, refined by held-out error", beam
     assert beam["default"] == estimate["exponent"], beam
     grid = refined_exponents(estimate["exponent"], estimate["stderr"])
-    half = 0.5 * np.diff(grid).min()  # the choice looks half a step beyond its best
-    assert len(beam["errors"]) >= len(grid), beam
-    assert grid.min() - half <= beam["exponent"] <= grid.max() + half, (grid, beam)
-    assert beam["errors"][f"{beam['exponent']:g}"] == min(beam["errors"].values()), beam
-    # no beam in these frames: measured 0.14 (ingest's 0.06 +- 0.04; held-out errors within
-    # 0.2 % of each other from 0 to 0.14)
-    assert beam["exponent"] < 0.2, beam
+    at_grid = [beam["errors"][f"{k:g}"] for k in grid]
+    assert len(grid) > 1 and np.argmin(at_grid) == len(grid) - 1, (grid, beam)
+    assert beam["source"] == "ingest" and beam["exponent"] == estimate["exponent"], beam
+    assert beam["exponent"] < 0.1, beam
 
 
 def test_the_raw_simulators_true_poses_carry_the_axis(tmp_path):
