@@ -7,13 +7,13 @@ and more a side, over every second pixel of every second row:
 
 * the LED-off lead (:func:`ltmstore.capture.lead.find_lead`) gives the ambient image, the
   median of its frames (:mod:`ltmstore.stages.ambient`); its frames are not samples;
-* the drift of camera B's gain per colour channel (:mod:`ltmstore.stages.drift`) is corrected
+* the drift of camera B's gain per colour channel (:mod:`ltmstore.capture.drift`) is corrected
   when it is well above the estimate's noise, refused when it is too large or too poorly
   determined to correct;
 * where the poses give phone A's LED axis (``axis_r, axis_s, axis_z``), the LED's ``cos^k``
   beam (over the plane's central half, where the frame is taken to lie) enters the drift
   model, so that a hand's wobble is not read as drift, and its exponent ``k`` is measured from
-  how the wobble moves light across the frame (:mod:`ltmstore.stages.led_beam`, the room light
+  how the wobble moves light across the frame (:mod:`ltmstore.capture.led_beam`, the room light
   taken off first) and recorded (``beam``; :data:`BEAM_PROFILE_EXPONENT` where the frames
   cannot tell). The frames are not divided by the beam here: at the object's centre (all
   ingest knows of the pixels' places) that brought the frames of a 64 px canvas with a 3
@@ -39,7 +39,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ltmstore.capture.drift import DriftEstimate, beam_log_ratio, estimate_drift
 from ltmstore.capture.lead import Lead, find_lead
+from ltmstore.capture.led_beam import estimate_beam
 from ltmstore.capture.undistort import Undistorter
 from ltmstore.capture.video import VideoReader, threaded_first
 from ltmstore.capture.yuv import frame_to_rgb, half_rgb
@@ -47,9 +49,7 @@ from ltmstore.core.dims import Plane, rgb_to_ycbcr
 from ltmstore.core.errors import LtmError, LtmWarning
 from ltmstore.core.transfer import linearise
 from ltmstore.stages.ambient import ambient_floor, ambient_image
-from ltmstore.stages.drift import DriftEstimate, beam_log_ratio, estimate_drift
 from ltmstore.stages.frames import Lights
-from ltmstore.stages.led_beam import estimate_beam
 from ltmstore.stages.occlusion import occluded_frames
 
 BLOCK_GRID = 8

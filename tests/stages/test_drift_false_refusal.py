@@ -55,7 +55,7 @@ def spread(tmp_path_factory):
 
 
 def _decide(scan, t, lights, plane, gains=None):
-    from ltmstore.stages.drift import estimate_drift
+    from ltmstore.capture.drift import estimate_drift
     from ltmstore.stages.phone import _drift_decision
 
     blocks = scan.blocks if gains is None else scan.blocks * gains[:, None, :]

@@ -281,7 +281,7 @@ def test_lead_is_found_from_the_brightness_alone(series, step):
 
 
 def test_frames_no_fixed_exposure_explains_are_refused():
-    from ltmstore.stages.drift import DriftEstimate
+    from ltmstore.capture.drift import DriftEstimate
     from ltmstore.stages.phone import _drift_decision
 
     n = 200
@@ -301,7 +301,7 @@ def test_a_drift_the_data_cannot_measure_is_not_taken_as_locked():
     capture) measured as a 5.7 % RMS drift with a 1.5 % standard error, but a data-only standard
     error of 29 %: within four of its own standard errors, it was taken as locked and ingested
     with exit 0. A drift the data cannot measure is refused unless it is below 1 %."""
-    from ltmstore.stages.drift import DriftEstimate
+    from ltmstore.capture.drift import DriftEstimate
     from ltmstore.stages.phone import DRIFT_MIN, _drift_decision
 
     n = 200

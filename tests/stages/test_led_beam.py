@@ -81,7 +81,7 @@ def _beamed(blocks, lights, axis, k: float) -> np.ndarray:
 
 
 def test_the_beams_wobble_is_not_read_as_drift(capture):
-    from ltmstore.stages.drift import beam_log_ratio, estimate_drift
+    from ltmstore.capture.drift import beam_log_ratio, estimate_drift
 
     _, scan, t, lights, plane, axis = capture
     blocks = _beamed(scan.blocks, lights, axis, 2.0)
@@ -104,7 +104,7 @@ def test_the_beam_is_measured_across_the_frame(capture):
     """The beam's exponent from how the wobble moves light across the frame: a change shared
     by all of a frame's blocks (camera B's gain, the codec's shared error) does not reach it,
     and neither does the way the frame lies on the plane."""
-    from ltmstore.stages.led_beam import estimate_beam
+    from ltmstore.capture.led_beam import estimate_beam
 
     _, scan, _, lights, plane, axis = capture
     args = (lights.r, lights.s, lights.z, axis, lights.valid, plane, ((-0.1, 0.1), (-0.1, 0.1)))

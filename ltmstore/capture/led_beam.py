@@ -9,7 +9,7 @@ fits, per colour channel:
     log F[i, b] = f_b(r_i, s_i, z_i) + c_i + k * beam[i, b]
 
 with ``f_b`` each block's brightness as a function of the light's position (the position basis
-of :mod:`ltmstore.stages.drift`, eliminated by a projection), ``c_i`` a term common to all
+of :mod:`ltmstore.capture.drift`, eliminated by a projection), ``c_i`` a term common to all
 blocks of frame ``i`` (eliminated by taking each frame's mean over the blocks off) and
 ``beam[i, b]`` the log of the beam's cosine towards block ``b`` relative to that of the LED held
 level. The common term takes up whatever changes the whole frame at once: camera B's exposure
@@ -33,14 +33,14 @@ import itertools
 import numpy as np
 import scipy.linalg
 
-from ltmstore.core.dims import Plane
-from ltmstore.stages.drift import (
+from ltmstore.capture.drift import (
     MIN_BLOCK_FRACTION,
     MIN_DOF,
     MIN_FRAMES,
     beam_log_ratios,
     position_basis,
 )
+from ltmstore.core.dims import Plane
 
 MIN_COS = 1e-3  # the beam's cosine ratio towards a block the LED points away from
 MIN_RELATIVE = 0.01  # a block's value is floored at this fraction of its median
@@ -59,7 +59,7 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
     blocks : ndarray (n, G * G, 3)
         Mean linear RGB of a ``G x G`` grid of camera B's blocks per frame (rows from the
         frame's top), the room light taken off; blocks darker than
-        :data:`~ltmstore.stages.drift.MIN_BLOCK_FRACTION` of the brightest are left out.
+        :data:`~ltmstore.capture.drift.MIN_BLOCK_FRACTION` of the brightest are left out.
     r, s, z : ndarray (n,)
         Light position per frame.
     axis : ndarray (n, 3)
@@ -74,8 +74,8 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
     Returns
     -------
     (exponent, stderr) or None
-        None where fewer than :data:`~ltmstore.stages.drift.MIN_FRAMES` frames are usable, the
-        model leaves fewer than :data:`~ltmstore.stages.drift.MIN_DOF` degrees of freedom, or
+        None where fewer than :data:`~ltmstore.capture.drift.MIN_FRAMES` frames are usable, the
+        model leaves fewer than :data:`~ltmstore.capture.drift.MIN_DOF` degrees of freedom, or
         fewer than two blocks are bright enough.
         The standard error treats each frame's blocks as one draw (their errors, the codec's
         included, may be shared).

@@ -23,7 +23,7 @@ more term ``k * beam_i``, common to all blocks, with ``k`` (the beam's exponent)
 jointly. The level beam's part is a function of the position alone, the painting's as before
 (a regressor holding it too took up the position model's misfit: ``k`` came out 0.8-1.0 on
 frames with no beam at all). That ``k`` is the drift's nuisance: the beam itself is measured
-across the frame (:mod:`ltmstore.stages.led_beam`), where the gain and the codec's shared errors
+across the frame (:mod:`ltmstore.capture.led_beam`), where the gain and the codec's shared errors
 do not reach.
 
 Limits: a gain that follows the light position with no lag (an auto-exposure reacting
