@@ -52,13 +52,13 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
                   axis: np.ndarray, lit: np.ndarray, plane: Plane,
                   extent: tuple[tuple[float, float], tuple[float, float]]
                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The beam's exponent per colour channel ``(3,)`` and its standard error ``(3,)``.
+    """The beam's exponent per colour channel ``(C,)`` and its standard error ``(C,)``.
 
     Parameters
     ----------
-    blocks : ndarray (n, G * G, 3)
-        Mean linear RGB of a ``G x G`` grid of camera B's blocks per frame (rows from the
-        frame's top), the room light taken off; blocks darker than
+    blocks : ndarray (n, G * G, C)
+        Mean linear RGB (or luminance, ``C = 1``) of a ``G x G`` grid of camera B's blocks
+        per frame (rows from the frame's top), the room light taken off; blocks darker than
         :data:`~ltmstore.capture.drift.MIN_BLOCK_FRACTION` of the brightest are left out.
     r, s, z : ndarray (n,)
         Light position per frame.
@@ -93,7 +93,8 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
         return None
     lit_blocks = lit_blocks[:, keep]
     floor = MIN_RELATIVE * np.median(lit_blocks, axis=0)  # the room light's noise taken off
-    logs = [_centred(np.log(np.maximum(lit_blocks[..., c], floor[:, c])), q) for c in range(3)]
+    logs = [_centred(np.log(np.maximum(lit_blocks[..., c], floor[:, c])), q)
+            for c in range(blocks.shape[2])]
     grid = int(round(np.sqrt(blocks.shape[1])))
     fits = []
     for orientation in ORIENTATIONS:
@@ -104,6 +105,14 @@ def estimate_beam(blocks: np.ndarray, r: np.ndarray, s: np.ndarray, z: np.ndarra
     upright = [f for f in fits if np.mean(f[0]) >= 0] or fits
     exponent, stderr, _ = min(upright, key=lambda f: f[2])
     return exponent, stderr
+
+
+def object_guess(plane: Plane) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Where camera B's blocks are taken to lie before the object is placed: the plane's
+    central half in each direction (the simulator's 20 cm painting under its 40 cm plane)."""
+    def half(lo: float, hi: float) -> tuple[float, float]:
+        return (0.75 * lo + 0.25 * hi, 0.25 * lo + 0.75 * hi)
+    return (half(*plane.r), half(*plane.s))
 
 
 def _block_positions(grid: int, extent: tuple[tuple[float, float], tuple[float, float]],
@@ -138,7 +147,7 @@ def _centred(values: np.ndarray, q: np.ndarray) -> np.ndarray:
 def _fit(logs: list[np.ndarray], beam: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Per channel, the least-squares ``k`` of ``logs[c] ~ k * beam``, its standard error
     (each frame's blocks one cluster) and the residual sum of squares of all channels."""
-    exponent, stderr, rss = np.zeros(3), np.zeros(3), 0.0
+    exponent, stderr, rss = np.zeros(len(logs)), np.zeros(len(logs)), 0.0
     norm = max(float(np.sum(beam * beam)), 1e-300)
     for c, y in enumerate(logs):
         exponent[c] = float(np.sum(beam * y)) / norm

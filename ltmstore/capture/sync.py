@@ -15,13 +15,16 @@ flexible model); around that optimum the block model is minimised on a 1 ms grid
 parabola through the minimum (sub-frame). The standard error comes from the curvature of the
 residual, the confidence from how much better the optimum is than the runner-up.
 
-Where the poses carry the LED's axis (``ltm track`` writes it), the brightness is first divided
-by the beam ``cos^k`` of the angle between that axis and the direction to the plane centre, for
-each exponent of :data:`BEAM_EXPONENTS` (0: an LED that lights evenly), and the fine stage keeps
-the exponent whose fit leaves the least residual. A hand wobbles the phone by a degree or two, and
-a beam's brightness that follows the wobble, not the path, had pulled the offset: on a simulated
-720 px canvas with a ``cos^2`` beam and its true poses, -0.45 frame; with the beam, +0.01 (a
-beam-free capture keeps 0 and +0.04 frame).
+Where the poses carry the LED's axis (``ltm track`` writes it), the brightness is divided by
+the beam ``cos^k`` of the angle between that axis and the direction to the plane centre, ``k``
+measured from how the wobble moves light across the frame's blocks at the offset found without
+the beam (:func:`ltmstore.capture.led_beam.estimate_beam`, the room light of the LED-off lead
+taken off), and the offset found again: twice (:data:`BEAM_ROUNDS`). A hand wobbles the phone
+by a degree or two, and a beam's brightness that follows the wobble, not the path, pulls the
+offset: on a simulated 720 px canvas with a ``cos^2`` beam and its true poses, -0.45 frame;
+with the beam, +0.01 (a beam-free capture keeps 0 and +0.04 frame). The exponent was once
+chosen by the fit's residual among 0-3; with room light, lens and codec as well (every effect,
+tracked poses) the residual chose 0 and the offset was 0.25-0.38 frame off.
 
 The estimate is written to ``acquisition.json`` as ``time_offset`` (seconds added to the pose
 times, ingest's convention) with a ``time_offset_estimate`` record; the file is replaced
@@ -42,7 +45,9 @@ from tqdm.auto import tqdm
 
 from ltmstore.capture.acquisition import load_acquisition, load_poses, write_text_atomic
 from ltmstore.capture.lead import find_lead
+from ltmstore.capture.led_beam import estimate_beam, object_guess
 from ltmstore.capture.video import VideoReader, transfer_lut
+from ltmstore.core.dims import Plane
 from ltmstore.core.errors import LtmError
 
 GRID = 6  # blocks per image side
@@ -56,7 +61,12 @@ MIN_CONTRAST = 0.3  # 1 - best residual / residual at the runner-up local minimu
 MIN_OVERLAP = 0.5  # fraction of video B that must overlap the poses at an offset
 FINE_STEP = 0.001  # seconds
 FINE_WINDOW = 3  # coarse steps either side of the coarse optimum searched finely
-BEAM_EXPONENTS = (0.0, 1.0, 2.0, 3.0)  # the LED's cos^k beam, chosen by the fit's residual
+BEAM_ROUNDS = 2  # the beam's exponent measured at the offset found, then the offset found again
+# The measured beam is divided out where it stands this many standard errors above none and
+# at least a Lambertian emitter's exponent: beam-free simulated canvases measured 0.13-0.21
+# (720 px) and 0.25-0.44 +- 0.04 (64 px), and dividing by 0.44 had moved the offset 0.2 frame.
+BEAM_SIGNIFICANCE = 2.0
+MIN_BEAM_EXPONENT = 1.0
 MIN_BEAM_COS = 0.05  # the beam's cosine is floored here (a light beside the plane)
 KERNEL_CENTRES = [(cr, cs) for cr in (-0.05, 0.0, 0.05) for cs in (-0.05, 0.0, 0.05)]  # m
 
@@ -193,7 +203,7 @@ class OffsetCost:
 
 def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
                     max_offset: float = DEFAULT_MAX_OFFSET, skip_frames: int = 0,
-                    centre: tuple[float, float] = (0.0, 0.0)) -> dict:
+                    plane: Plane | None = None, room: np.ndarray | float = 0.0) -> dict:
     """Estimate the clock offset ``tau`` (``t_B = t_poses + tau``) with its confidence.
 
     Parameters
@@ -209,9 +219,11 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
     skip_frames : int
         Leading frames of video B left out of the fit (the LED-off lead: its brightness is
         the room light's, not a function of the light's position).
-    centre : (float, float)
-        Where on the plane the painting lies (``r, s``): the LED's beam is taken towards it
-        where the poses carry the LED's axis.
+    plane : Plane, optional
+        The light plane; where given and the poses carry the LED's axis, the LED's beam is
+        measured and divided out, taken towards the plane's centre (where the painting lies).
+    room : ndarray (blocks,) or float
+        The room light's block brightness (the LED-off lead's), taken off to measure the beam.
 
     Returns
     -------
@@ -221,8 +233,11 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
         explained by the fine model), ``contrast`` (1 - best residual / residual at the
         runner-up: the lowest other coarse local minimum more than two frames away; the
         confidence that the offset is not confused with another), ``runner_up_s``,
-        ``runner_up_r2``, ``frames_used`` and ``beam_exponent`` (the LED's ``cos^k`` beam
-        the brightness was divided by: 0 where the poses carry no axis).
+        ``runner_up_r2``, ``frames_used``, ``beam_exponent`` (the LED's ``cos^k`` beam the
+        brightness was divided by: 0 where the poses carry no axis, no ``plane`` is given or
+        the beam measured is within :data:`BEAM_SIGNIFICANCE` standard errors of none or below
+        :data:`MIN_BEAM_EXPONENT`) and
+        ``beam_stderr`` (None where not measured).
 
     Raises
     ------
@@ -242,11 +257,18 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
     k = int(np.nanargmin(costs))
     reach = FINE_WINDOW * step
     fine = np.arange(taus[k] - reach, taus[k] + reach + FINE_STEP / 2, FINE_STEP)
-    beams = BEAM_EXPONENTS if poses.axis is not None else (0.0,)
-    fits = [_fine(OffsetCost(brightness, fps, poses, skip_frames, beam, centre) if beam
-                  else cost, fine) for beam in beams]  # the coarse stage's cost has no beam
-    beam = int(np.argmin([f[1] for f in fits]))
-    tau, best, used, fine_costs = fits[beam]
+    tau, best, used, fine_costs = _fine(cost, fine)
+    beam, beam_stderr = 0.0, None
+    if poses.axis is not None and plane is not None:
+        centre = (sum(plane.r) / 2, sum(plane.s) / 2)
+        for _ in range(BEAM_ROUNDS):
+            measured = _beam_at(cost, tau, plane, room)
+            if measured is None or measured[0] < max(BEAM_SIGNIFICANCE * measured[1],
+                                                      MIN_BEAM_EXPONENT):
+                break
+            beam, beam_stderr = measured
+            beamed = OffsetCost(brightness, fps, poses, skip_frames, beam, centre)
+            tau, best, used, fine_costs = _fine(beamed, fine)
     # standard error: RSS(tau) ~ RSS_min (1 + curv/2 dtau^2); var(tau) = 2 sigma^2 / RSS''
     near = np.abs(fine - tau) <= 4 * FINE_STEP + 1e-12
     curv = (float(np.polyfit(fine[near] - tau, fine_costs[near], 2)[0] * 2)
@@ -261,7 +283,7 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
               "runner_up_s": None if runner is None else float(taus[runner]),
               "runner_up_r2": float(1 - runner_cost),
               "frames_used": used, "search_s": [-max_offset, max_offset], "grid": GRID,
-              "degree": cost.degree, "beam_exponent": beams[beam],
+              "degree": cost.degree, "beam_exponent": beam, "beam_stderr": beam_stderr,
               "method": "brightness of video B against the tracked light path"}
     if result["r2"] < MIN_R2 or result["contrast"] < MIN_CONTRAST:
         raise LtmError(f"no usable signal for sync: the light path explains "
@@ -284,6 +306,19 @@ def _fine(cost: OffsetCost, fine: np.ndarray) -> tuple[float, float, int, np.nda
             tau -= 0.5 * FINE_STEP * (c2 - c0) / (c0 - 2 * c1 + c2)
     best, used = cost(tau)
     return tau, best, used, fine_costs
+
+
+def _beam_at(cost: OffsetCost, tau: float, plane: Plane,
+             room: np.ndarray | float) -> tuple[float, float] | None:
+    """The LED beam's exponent and its standard error measured across the frame's blocks
+    (luminance, ``room`` taken off) with the light and the LED's axis at offset ``tau``."""
+    poses = cost.poses
+    u = cost.t - tau
+    r, s, z = (np.interp(u, poses.t, c) for c in (poses.r, poses.s, poses.z))
+    axis = np.stack([np.interp(u, poses.t, c) for c in poses.axis.T], axis=1)
+    blocks = (cost.brightness - room)[:, :, None]
+    measured = estimate_beam(blocks, r, s, z, axis, cost.rows(tau), plane, object_guess(plane))
+    return None if measured is None else (float(measured[0][0]), float(measured[1][0]))
 
 
 def _runner_up(taus: np.ndarray, costs: np.ndarray, tau: float, away: float) -> int | None:
@@ -342,9 +377,9 @@ def sync_acquisition(acq_dir: str | os.PathLike, *, max_offset: float = DEFAULT_
     brightness, fps = block_brightness(acq.video, acq.transfer, progress=progress)
     lead = find_lead(brightness.mean(axis=1), fps)
     skip = 0 if lead is None else lead.excluded[1]
-    centre = (sum(acq.plane.r) / 2, sum(acq.plane.s) / 2)
+    room = 0.0 if lead is None else brightness[slice(*lead.ambient)].mean(axis=0)
     result = estimate_offset(brightness, fps, poses, max_offset=max_offset, skip_frames=skip,
-                             centre=centre)
+                             plane=acq.plane, room=room)
     result["led_off_frames"] = skip
     meta = dict(acq.raw)
     meta["time_offset"] = result["time_offset"]

@@ -41,7 +41,7 @@ import numpy as np
 
 from ltmstore.capture.drift import DriftEstimate, beam_log_ratio, estimate_drift
 from ltmstore.capture.lead import Lead, find_lead
-from ltmstore.capture.led_beam import estimate_beam
+from ltmstore.capture.led_beam import estimate_beam, object_guess
 from ltmstore.capture.undistort import Undistorter
 from ltmstore.capture.video import VideoReader, threaded_first
 from ltmstore.capture.yuv import frame_to_rgb, half_rgb
@@ -180,7 +180,7 @@ def plan_corrections(scan: Scan, lights: Lights, plane: Plane, *,
     lit = lights.valid if lead_end is None else lights.valid & (scan.index >= lead_end)
     # A hand's shadow is no change of exposure: the frames ingest rejects as occluded stay out.
     lit = lit & ~occluded_frames(scan.brightness, lights.r, lights.s, lights.z, lit)
-    extent = _object_guess(plane)
+    extent = object_guess(plane)
     beam = None if lights.axis is None else beam_log_ratio(
         lights.r, lights.s, lights.z, lights.axis, extent)
     drift = estimate_drift(scan.blocks, t, lights.r, lights.s, lights.z, lit, plane, beam=beam)
@@ -203,14 +203,6 @@ def _without_room_light(blocks: np.ndarray, lead: Lead | None) -> np.ndarray:
     if lead is None:
         return blocks
     return blocks - blocks[slice(*lead.ambient)].mean(axis=0)
-
-
-def _object_guess(plane: Plane) -> tuple[tuple[float, float], tuple[float, float]]:
-    """Where the frame's blocks lie on the object: the plane's central half in each direction
-    (the simulator's 20 cm painting under its 40 cm plane; the placement is not known yet)."""
-    def half(lo: float, hi: float) -> tuple[float, float]:
-        return (0.75 * lo + 0.25 * hi, 0.25 * lo + 0.75 * hi)
-    return (half(*plane.r), half(*plane.s))
 
 
 def _beam_record(measured: tuple[np.ndarray, np.ndarray] | None, lights: Lights) -> dict:

@@ -142,10 +142,10 @@ def _true_poses_csv(acq, offset: float, axis: bool) -> None:
 @pytest.mark.parametrize("effects", ["led-falloff", "none"])
 def test_the_leds_beam_is_divided_out_where_the_poses_carry_its_axis(tmp_path, effects):
     """A cos^2 beam wobbling with the hand (1.6 degrees RMS) makes video B's brightness follow
-    the phone's tilt as well as its position. With the axis in the poses, sync divides the beam
-    out at the exponent its fit prefers: measured +0.05 frame (exponent 2) against -0.33 with the
-    axis left out (simulated 64 px canvas, true poses, seed 0); a capture without a beam keeps
-    exponent 0."""
+    the phone's tilt as well as its position. With the axis in the poses, sync measures the
+    beam across the frame and divides it out: measured exponent 1.71 +- 0.14 and -0.001 frame,
+    against -0.33 with the axis left out (simulated 64 px canvas, true poses, seed 0); a capture
+    without a beam measures 0.25, below a Lambertian emitter's 1, and keeps exponent 0."""
     from ltmstore.synthetic.raw import PhoneCamera, simulate_raw
 
     info = simulate_raw(tmp_path / "raw", scene="canvas", path_density=8.0, seed=0, size=64,
@@ -157,7 +157,10 @@ def test_the_leds_beam_is_divided_out_where_the_poses_carry_its_axis(tmp_path, e
         _true_poses_csv(acq, info["time_offset"], axis)
         result = sync_acquisition(acq, overwrite=True, progress=False)
         errors[axis] = (result["time_offset"] - info["time_offset"]) * FPS
-        assert result["beam_exponent"] == (2.0 if axis and effects != "none" else 0.0), result
+        if axis and effects != "none":
+            assert 1.5 < result["beam_exponent"] < 2.5 and result["beam_stderr"] < 0.2, result
+        else:
+            assert result["beam_exponent"] == 0.0, result
     if effects == "none":
         assert errors[True] == errors[False], errors
     else:
