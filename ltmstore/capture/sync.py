@@ -236,8 +236,7 @@ def estimate_offset(brightness: np.ndarray, fps: float, poses, *,
         ``runner_up_r2``, ``frames_used``, ``beam_exponent`` (the LED's ``cos^k`` beam the
         brightness was divided by: 0 where the poses carry no axis, no ``plane`` is given or
         the beam measured is within :data:`BEAM_SIGNIFICANCE` standard errors of none or below
-        :data:`MIN_BEAM_EXPONENT`) and
-        ``beam_stderr`` (None where not measured).
+        :data:`MIN_BEAM_EXPONENT`) and ``beam_stderr`` (None where not measured).
 
     Raises
     ------
