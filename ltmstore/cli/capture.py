@@ -175,5 +175,7 @@ def cmd_sync(a: argparse.Namespace) -> None:
     from ltmstore.capture.sync import sync_acquisition
 
     r = sync_acquisition(a.acquisition, max_offset=a.max_offset, overwrite=a.overwrite)
+    beam = (f"; the LED's cos^k beam divided out, k {r['beam_exponent']:.2f} +- "
+            f"{r['beam_stderr']:.2f}" if r["beam_exponent"] else "")
     print(f"time_offset {r['time_offset']:+.4f} s (+- {r['stderr_s'] * 1000:.1f} ms, "
-          f"r2 {r['r2']:.3f}, contrast {r['contrast']:.2f}); wrote {r['acquisition']}")
+          f"r2 {r['r2']:.3f}, contrast {r['contrast']:.2f}{beam}); wrote {r['acquisition']}")

@@ -165,6 +165,10 @@ def test_the_leds_beam_is_divided_out_where_the_poses_carry_its_axis(tmp_path, e
         errors[axis] = (result["time_offset"] - info["time_offset"]) * FPS
         if axis and effects != "none":
             assert 1.5 < result["beam_exponent"] < 2.5 and result["beam_stderr"] < 0.2, result
+            proc = run_ltm("sync", acq, "--overwrite")  # the command says what it divided out
+            assert proc.returncode == 0, proc.stderr
+            assert (f"the LED's cos^k beam divided out, k {result['beam_exponent']:.2f} +- "
+                    f"{result['beam_stderr']:.2f}") in proc.stdout, proc.stdout
         else:
             assert result["beam_exponent"] == 0.0, result
     if effects == "none":
