@@ -61,7 +61,11 @@ MIN_CONTRAST = 0.3  # 1 - best residual / residual at the runner-up local minimu
 MIN_OVERLAP = 0.5  # fraction of video B that must overlap the poses at an offset
 FINE_STEP = 0.001  # seconds
 FINE_WINDOW = 3  # coarse steps either side of the coarse optimum searched finely
-BEAM_ROUNDS = 2  # the beam's exponent measured at the offset found, then the offset found again
+# Rounds of the beam's exponent measured at the offset found, then the offset found again. On
+# the 720 px every-effect and beam captures of the phone-size bench (tracked poses), one round
+# left the beam-only ones 0.08-0.21 frame off (measured at the beam-free offset, 0.45 frame
+# early: k 2.7-2.8); two, 0.02-0.14; three, 0.03-0.14.
+BEAM_ROUNDS = 2
 # The measured beam is divided out where it stands this many standard errors above none and
 # at least a Lambertian emitter's exponent: beam-free simulated canvases measured 0.13-0.21
 # (720 px) and 0.25-0.44 +- 0.04 (64 px), and dividing by 0.44 had moved the offset 0.2 frame.
