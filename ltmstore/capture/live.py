@@ -359,17 +359,15 @@ class LiveSession:
         """The clock offset between the two videos as ``ltm sync`` estimates it (not written:
         ``ltm sync FOLDER`` records it), so that the coverage counts camera B's own frames."""
         from ltmstore.capture.acquisition import Poses
-        from ltmstore.capture.lead import find_lead
-        from ltmstore.capture.sync import block_brightness, estimate_offset
+        from ltmstore.capture.sync import video_offset
 
         placed = [p for p in self.video_poses if p.status in PLACED]
         led = np.array([p.led for p in placed])
-        poses = Poses(t=np.array([p.t for p in placed]), r=led[:, 0], s=led[:, 1], z=led[:, 2])
+        axis = np.array([p.axis for p in placed])  # as poses.csv has it (write_tracks)
+        poses = Poses(t=np.array([p.t for p in placed]), r=led[:, 0], s=led[:, 1], z=led[:, 2],
+                      axis=axis if np.isfinite(axis).all() else None)
         try:
-            brightness, fps = block_brightness(video_b, self.config.transfer, progress=False)
-            lead = find_lead(brightness.mean(axis=1), fps)
-            result = estimate_offset(brightness, fps, poses,
-                                     skip_frames=0 if lead is None else lead.excluded[1])
+            result = video_offset(video_b, self.config.transfer, poses, self.config.plane)
         except (LtmError, ValueError) as exc:  # no usable signal: count on phone A's clock
             self.offset_note = str(exc)
             return

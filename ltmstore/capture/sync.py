@@ -67,10 +67,11 @@ FINE_WINDOW = 3  # coarse steps either side of the coarse optimum searched finel
 # early: k 2.7-2.8); two, 0.02-0.14; three, 0.03-0.14.
 BEAM_ROUNDS = 2
 # The measured beam is divided out where it stands this many standard errors above none and
-# at least a Lambertian emitter's exponent: beam-free simulated canvases measured 0.13-0.21
-# (720 px) and 0.25-0.44 +- 0.04 (64 px), and dividing by 0.44 had moved the offset 0.2 frame.
+# at least MIN_BEAM_EXPONENT: beam-free simulated canvases measured 0.13-0.21 (720 px),
+# 0.25-0.44 +- 0.04 (64 px; dividing by 0.44 had moved the offset 0.2 frame) and, tracked from
+# the board in the live pages' 24 px capture, 1.12 +- 0.19; the cos^2 beams measured 1.7-2.8.
 BEAM_SIGNIFICANCE = 2.0
-MIN_BEAM_EXPONENT = 1.0
+MIN_BEAM_EXPONENT = 1.5
 MIN_BEAM_COS = 0.05  # the beam's cosine is floored here (a light beside the plane)
 KERNEL_CENTRES = [(cr, cs) for cr in (-0.05, 0.0, 0.05) for cs in (-0.05, 0.0, 0.05)]  # m
 
@@ -377,18 +378,27 @@ def sync_acquisition(acq_dir: str | os.PathLike, *, max_offset: float = DEFAULT_
                        f"{span_p:.1f} s; expected recordings of the same sweep (lengths within "
                        f"{2 * max_offset:g} s, see --max-offset, and within a factor "
                        f"{1 / MIN_OVERLAP:g})")
-    brightness, fps = block_brightness(acq.video, acq.transfer, progress=progress)
-    lead = find_lead(brightness.mean(axis=1), fps)
-    skip = 0 if lead is None else lead.excluded[1]
-    room = 0.0 if lead is None else brightness[slice(*lead.ambient)].mean(axis=0)
-    result = estimate_offset(brightness, fps, poses, max_offset=max_offset, skip_frames=skip,
-                             plane=acq.plane, room=room)
-    result["led_off_frames"] = skip
+    result = video_offset(acq.video, acq.transfer, poses, acq.plane, max_offset=max_offset,
+                          progress=progress)
     meta = dict(acq.raw)
     meta["time_offset"] = result["time_offset"]
     meta["time_offset_estimate"] = {k: v for k, v in result.items() if k != "time_offset"}
     _replace_json(meta_path, meta)
     return {**result, "acquisition": str(meta_path)}
+
+
+def video_offset(video: str | os.PathLike, transfer: str, poses, plane: Plane, *,
+                 max_offset: float = DEFAULT_MAX_OFFSET, progress: bool = False) -> dict:
+    """:func:`estimate_offset` of video B's frames against ``poses``, its LED-off lead found
+    and left out (``led_off_frames`` added to the result), its room light taken off where the
+    beam is measured: what ``ltm sync`` records, and what the live capture counts with."""
+    brightness, fps = block_brightness(video, transfer, progress=progress)
+    lead = find_lead(brightness.mean(axis=1), fps)
+    skip = 0 if lead is None else lead.excluded[1]
+    room = 0.0 if lead is None else brightness[slice(*lead.ambient)].mean(axis=0)
+    result = estimate_offset(brightness, fps, poses, max_offset=max_offset, skip_frames=skip,
+                             plane=plane, room=room)
+    return {**result, "led_off_frames": skip}
 
 
 def _replace_json(path: Path, meta: dict) -> None:

@@ -149,7 +149,7 @@ def test_the_leds_beam_is_divided_out_where_the_poses_carry_its_axis(tmp_path, e
     the phone's tilt as well as its position. With the axis in the poses, sync measures the
     beam across the frame and divides it out: measured exponent 1.71 +- 0.14 and -0.001 frame,
     against -0.33 with the axis left out (simulated 64 px canvas, true poses, seed 0); a capture
-    without a beam measures 0.25, below a Lambertian emitter's 1, and keeps exponent 0. With
+    without a beam measures 0.25, below the 1.5 taken as a beam, and keeps exponent 0. With
     room light, motion blur, rolling shutter and H.264 as well: 2.06 +- 0.12 and +0.000 frame,
     where the exponent chosen by the fit's residual (the code before) was 0 and -0.44 frame."""
     from ltmstore.synthetic.raw import PhoneCamera, simulate_raw

@@ -22,6 +22,7 @@ const capture = {
   sent: 0,            // frames sent
   answered: 0,        // answers received
   placed: 0,          // answers with the light placed
+  overtaken: 0,       // frames not sent: the next frame replaced it before it was drawn
   camera: null,       // the open camera's label
   torch: "unknown",   // "on" (the page switched the LED on) | "manual" (the user must)
   resolution: null,   // [width, height] of the frames sent
@@ -110,7 +111,10 @@ async function switchTorchOn() {
  * (so ``now`` cannot bound it). Where the browser has that callback, a frame is never sent
  * with a guessed time: without it, the time the page gave up waiting would place a frame that
  * arrived late (a loaded machine) where the LED was a few hundred ms later. Without the
- * callback, the current frame is drawn every POLL_MS and timed on arrival.
+ * callback, the current frame is drawn every POLL_MS and timed on arrival. The callback does
+ * not guarantee that the video still shows its frame when it runs (a suite run paired one
+ * frame in 35 with its neighbour's time): where the browser has VideoFrame, the frame is taken
+ * as a VideoFrame, drawn only if its timestamp is the callback's, and skipped otherwise.
  */
 function nextFrame(video, canvas) {
   const callback = Boolean(video.requestVideoFrameCallback);
@@ -124,21 +128,41 @@ function nextFrame(video, canvas) {
         const arrived = performance.now();
         const t = meta && Number.isFinite(meta.captureTime) && meta.captureTime <= arrived &&
           meta.captureTime > arrived - 1000 ? meta.captureTime : now;
-        resolve(drawFrame(video, canvas) ? t / 1000 : null);
+        resolve(drawFrame(video, canvas, meta) ? t / 1000 : null);
       });
     }
   });
 }
 
-/** Draw the video's current frame into ``canvas`` (false: the video has no size yet). */
-function drawFrame(video, canvas) {
+/**
+ * Draw the video's current frame into ``canvas``: false where the video has no size yet, or
+ * where ``meta`` (a video-frame callback's) describes another frame than the one shown now.
+ */
+function drawFrame(video, canvas, meta) {
   if (!video.videoWidth) return false;
+  const frame = meta ? currentFrame(video) : null;
+  if (frame && Math.abs(frame.timestamp - meta.mediaTime * 1e6) > 1) {
+    frame.close();
+    capture.overtaken += 1;
+    return false;
+  }
   const scale = Math.min(1, MAX_SEND_WIDTH / video.videoWidth);
   canvas.width = Math.round(video.videoWidth * scale);
   canvas.height = Math.round(video.videoHeight * scale);
-  canvas.getContext("2d").drawImage(video, 0, 0, canvas.width, canvas.height);
+  canvas.getContext("2d").drawImage(frame || video, 0, 0, canvas.width, canvas.height);
+  if (frame) frame.close();
   capture.resolution = [canvas.width, canvas.height];
   return true;
+}
+
+/** The frame the video shows now, with its own timestamp (null without VideoFrame). */
+function currentFrame(video) {
+  if (typeof VideoFrame !== "function") return null;
+  try {
+    return new VideoFrame(video);
+  } catch (error) {
+    return null;
+  }
 }
 
 function encode(canvas) {
