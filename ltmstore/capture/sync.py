@@ -150,9 +150,14 @@ class OffsetCost:
         use = self.rows(tau)
         if int(use.sum()) < max(self.min_rows, ROWS_PER_PARAM * self.n_params):
             return use, None
-        u = self.t[use] - tau
         p = self.poses
-        return use, np.stack([np.interp(u, p.t, c) for c in (p.r, p.s, p.z)])
+        return use, self.poses_at(tau, use, (p.r, p.s, p.z))
+
+    def poses_at(self, tau: float, use: np.ndarray | slice, columns) -> np.ndarray:
+        """The poses' ``columns`` (each ``(m,)``) interpolated at video B's frames ``use`` with
+        the offset ``tau``: ``(len(columns), n)``."""
+        u = self.t[use] - tau
+        return np.stack([np.interp(u, self.poses.t, c) for c in columns])
 
     def coarse(self, tau: float) -> float:
         """Fraction of the total brightness's variance that the physical falloff of a flat
@@ -198,8 +203,7 @@ class OffsetCost:
         """The brightness of the frames ``use`` divided by the beam (exponent :attr:`beam`)
         towards the plane centre from the ``light (3, n)`` along the LED's axis at ``tau``,
         less its mean."""
-        u = self.t[use] - tau
-        axis = np.stack([np.interp(u, self.poses.t, c) for c in self.poses.axis.T])
+        axis = self.poses_at(tau, use, self.poses.axis.T)
         towards = self.centre - light
         cos = np.sum(axis * towards, axis=0) / np.linalg.norm(towards, axis=0)
         y = self.brightness[use] / np.maximum(cos, MIN_BEAM_COS)[:, None] ** self.beam
@@ -317,9 +321,8 @@ def _beam_at(cost: OffsetCost, tau: float, plane: Plane,
     """The LED beam's exponent and its standard error measured across the frame's blocks
     (luminance, ``room`` taken off) with the light and the LED's axis at offset ``tau``."""
     poses = cost.poses
-    u = cost.t - tau
-    r, s, z = (np.interp(u, poses.t, c) for c in (poses.r, poses.s, poses.z))
-    axis = np.stack([np.interp(u, poses.t, c) for c in poses.axis.T], axis=1)
+    r, s, z = cost.poses_at(tau, slice(None), (poses.r, poses.s, poses.z))
+    axis = cost.poses_at(tau, slice(None), poses.axis.T).T
     blocks = (cost.brightness - room)[:, :, None]
     measured = estimate_beam(blocks, r, s, z, axis, cost.rows(tau), plane, object_guess(plane))
     return None if measured is None else (float(measured[0][0]), float(measured[1][0]))
