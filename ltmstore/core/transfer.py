@@ -18,12 +18,23 @@ DEPTHS = (8, 16, FLOAT)  # what encode_images writes: uint8, uint16 code values,
 # pixel of every photograph of a capture.
 
 
+def power(v: np.ndarray, exponent: float, out: np.ndarray | None = None) -> np.ndarray:
+    """``v ** exponent`` of float32 values ``v >= 0`` as ``exp(exponent * log(v))``, in ``out``
+    where given (it may be ``v``): NumPy vectorises float32 ``exp`` and ``log`` on every x86-64
+    but ``power`` only with AVX-512 (2.1x on an AVX2 EPYC; within 7e-7 relative of ``power``,
+    0 at 0). A negative value gives NaN, as ``power`` does."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.log(v, out=out)
+        out *= np.float32(exponent)
+        return np.exp(out, out=out)
+
+
 def srgb_to_linear(v: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB decoding of values in ``[0, 1]`` (float32)."""
     v = np.asarray(v, dtype=np.float32)
     out = v + np.float32(0.055)
     out /= np.float32(1.055)
-    np.power(out, np.float32(2.4), out=out)
+    power(out, 2.4, out=out)
     np.divide(v, np.float32(12.92), out=out, where=v <= 0.04045)
     return out
 
@@ -33,7 +44,7 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     out = np.clip(np.asarray(v, dtype=np.float32), 0, 1)
     low = out <= 0.0031308
     dark = out[low] * np.float32(12.92)  # few values: the rest are encoded in place
-    np.power(out, np.float32(1 / 2.4), out=out)
+    power(out, 1 / 2.4, out=out)
     out *= np.float32(1.055)
     out -= np.float32(0.055)
     out[low] = dark

@@ -24,7 +24,7 @@ Models (:class:`Model`), smallest first:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache, lru_cache
 
 import numpy as np
 
@@ -39,6 +39,12 @@ EXACT = 1e-12  # an MSE below this fraction of the values' mean square is an exa
 HSH_RBF = "hsh3+rbf"  # family of HSH order 3 plus an RBF of its residual
 CACHED_WEIGHTS = 256  # Model.weights kept (a 240-light hat matrix: 0.5 MB)
 BASES = {"ptm": ptm_basis, "hsh2": lambda d: hsh_basis(d, 2), "hsh3": lambda d: hsh_basis(d, 3)}
+
+
+@cache
+def _basis_size(family: str) -> int:
+    """Terms of a linear basis of :data:`BASES` (asked once per tile and model by the choice)."""
+    return BASES[family](np.array([[0.0, 0.0, 1.0]])).shape[1]
 
 
 @dataclass(frozen=True)
@@ -57,8 +63,8 @@ class Model:
         if self.family == "rbf":
             return n_lights + 1
         if self.family == HSH_RBF:
-            return n_lights + 1 + BASES["hsh3"](np.array([[0.0, 0.0, 1.0]])).shape[1]
-        return BASES[self.family](np.array([[0.0, 0.0, 1.0]])).shape[1]
+            return n_lights + 1 + _basis_size("hsh3")
+        return _basis_size(self.family)
 
     def weights(self, train: np.ndarray, query: np.ndarray) -> np.ndarray:
         """``(q, n)`` weights: the prediction at ``query (q, 3)`` from observations at

@@ -51,8 +51,9 @@ def linear(y, cb, cr, exposure, color, out):  # pragma: no cover - compiled
 @njit(cache=True, nogil=True, error_model="numpy")
 def encoded_sum(linear, powered, weights, out):  # pragma: no cover - compiled
     """``out (d, p, c)``: ``weights (d, n)`` (float64) times the sRGB encoding of ``linear
-    (n, p, c)`` (:func:`linear`), ``powered`` its power ``1 / 2.4`` (NumPy's); summed in
-    float64, a photograph at a time (each read in order)."""
+    (n, p, c)`` (:func:`linear`), ``powered`` its power ``1 / 2.4``
+    (:func:`ltmstore.core.transfer.power`); summed in float64, a photograph at a time (each
+    read in order)."""
     n, p, channels = linear.shape
     d = weights.shape[0]
     sums = np.zeros((d, p, channels))

@@ -75,6 +75,7 @@ from ltmstore.core.transfer import (
     encode,
     exposure_gain,
     linear_to_srgb,
+    power,
     srgb_to_linear,
 )
 from ltmstore.solve import shadows
@@ -686,7 +687,7 @@ class _FarOperator:
         from ltmstore.stages import far_sums
 
         out = np.empty((len(self.weights), *linear.shape[1:]), np.float32)
-        far_sums.encoded_sum(linear, np.power(linear, np.float32(1 / 2.4)), self.weights, out)
+        far_sums.encoded_sum(linear, power(linear, 1 / 2.4), self.weights, out)
         return out
 
     def __call__(self, frames: np.ndarray, values: list[np.ndarray],
