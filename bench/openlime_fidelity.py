@@ -1,6 +1,8 @@
 """The web export drawn by OpenLIME itself at the held-out lights of real captures: its canvas
 (headless Chromium, WebGL, ``LayerRTI.setLight``) against the held-out photographs, beside the
-format's own math (``tests/rti_readers.py``) and ``ltm relight``.
+format's own math (``tests/rti_readers.py``) and ``ltm relight``; drawn by OpenLIME's default
+page and by a page that keeps the colour in full precision (``tests/browser.py``,
+``openlime_page(..., full_precision=True)``: no 8-bit linear framebuffer).
 
 Usage (stores made by ``ltm ingest-rti DIRS.lp S.zarr --holdout-lights 6`` + ``ltm
 reconstruct``; OpenLIME's sources as for ``tests/share/test_openlime.py``)::
@@ -30,11 +32,13 @@ from rti_readers import psnr, read_web, relit  # noqa: E402
 from ltmstore.share.export import export  # noqa: E402
 
 
-def drawn(folder: Path, report: dict, dirs: np.ndarray) -> np.ndarray:
+def drawn(folder: Path, report: dict, dirs: np.ndarray, full_precision: bool) -> np.ndarray:
     """OpenLIME's canvas ``(n, y, x, 3)`` at ``dirs``, the export served from ``folder``."""
-    (folder / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
+    if not (folder / "openlime").exists():
+        (folder / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
     (folder / "page.html").write_text(openlime_page(report["width"], report["height"], "rti",
-                                                    "image", "/web/info.json"))
+                                                    "image", "/web/info.json",
+                                                    full_precision=full_precision))
     with serve(folder) as url, Browser(64, 64) as browser:
         return draw_openlime(browser, f"{url}/page.html", (report["width"], report["height"]),
                              dirs)
@@ -47,12 +51,15 @@ def measure(store: str, quality: int | None) -> dict:
         report = export(store, Path(tmp) / "web", fmt="relight", quality=quality)
         coef, basis = read_web(Path(tmp) / "web")
         reader = relit(coef, basis(dirs))
-        openlime = drawn(Path(tmp), report, dirs)
+        openlime = drawn(Path(tmp), report, dirs, full_precision=False)
+        full = drawn(Path(tmp), report, dirs, full_precision=True)
     return {"held_out_lights": len(dirs), "quality": report["quality"],
             "ltm_relight_db": round(psnr(store_png, photos), 2),
             "reader_db": round(psnr(reader, photos), 2),
             "openlime_db": round(psnr(openlime, photos), 2),
-            "openlime_vs_reader_db": round(psnr(openlime, reader), 2)}
+            "openlime_vs_reader_db": round(psnr(openlime, reader), 2),
+            "openlime_full_precision_db": round(psnr(full, photos), 2),
+            "openlime_full_precision_vs_reader_db": round(psnr(full, reader), 2)}
 
 
 def main() -> None:

@@ -111,21 +111,37 @@ import {{ Layer }} from '/openlime/Layer.js';
 import '/openlime/LayerImage.js';
 import '/openlime/LayerRTI.js';
 import '/openlime/LayoutTiles.js';
-const viewer = new Viewer('#lime', {{ background: 'black',
-                                      canvas: {{ preserveDrawingBuffer: true }} }});
+import {{ ShaderFilter }} from '/openlime/ShaderFilter.js';
+// the layer's linear colour encoded back to sRGB by its own shader (see openlime_page)
+class ShaderFilterEncode extends ShaderFilter {{
+  fragDataSrc() {{ return `vec4 ${{this.functionName()}}(vec4 c) {{ return linear2srgb(c); }}`; }}
+}}
+const full = {full};
+const viewer = new Viewer('#lime', {{ background: 'black', canvas: {{
+  preserveDrawingBuffer: true, useOffscreenFramebuffer: !full }} }});
 const layer = new Layer({{ type: '{kind}', layout: '{layout}', url: '{url}' }});
 viewer.addLayer('{kind}', layer);
-layer.addEvent('ready', () => {{ window.ready = true; }});
+layer.addEvent('ready', () => {{
+  if (full) layer.shader.addFilter(new ShaderFilterEncode());
+  window.ready = true;
+}});
 Object.assign(window, {{ viewer, layer }});
 </script></body></html>"""
 
 
-def openlime_page(width: int, height: int, kind: str, layout: str, url: str) -> str:
+def openlime_page(width: int, height: int, kind: str, layout: str, url: str, *,
+                  full_precision: bool = False) -> str:
     """A page that draws one OpenLIME layer (``kind`` ``rti`` or ``image``, its ``layout`` and
     ``url``) in a ``width`` x ``height`` canvas, as OpenLIME's own viewer does; ``window.ready``
-    once the layer is, ``window.viewer`` and ``window.layer`` for the test."""
+    once the layer is, ``window.viewer`` and ``window.layer`` for the test.
+
+    ``full_precision``: OpenLIME's canvas without its offscreen framebuffer (``canvas:
+    {useOffscreenFramebuffer: false}``), the layer's shader encoding its linear colour back to
+    sRGB as its last step (a :class:`ShaderFilter` calling the shader's own ``linear2srgb``): the
+    colour stays in the shader's floats until the canvas's 8-bit sRGB, where by default it
+    passes through an 8-bit *linear* framebuffer that crushes the darkest levels."""
     return OPENLIME_PAGE.format(w=width, h=height, imports=openlime_import_map(), kind=kind,
-                                layout=layout, url=url)
+                                layout=layout, url=url, full="true" if full_precision else "false")
 
 
 class StaticHandler(SimpleHTTPRequestHandler):

@@ -64,3 +64,29 @@ def test_openlime_renders_the_relight_export(basis, small_store, tmp_path, serve
           f"{against_relight:.2f} dB; the reader vs ltm relight: {psnr(expected, shown):.2f} dB")
     assert min(each) > LOWEST[basis][0]
     assert against_relight > LOWEST[basis][1]
+
+
+@pytest.mark.skipif(not (OPENLIME_SRC / "LayerRTI.js").is_file(),
+                    reason=f"OpenLIME's sources absent at {OPENLIME_SRC} (not on npm; "
+                           "set LTM_OPENLIME_SRC to a checkout's src/)")
+def test_a_full_precision_page_draws_what_the_format_holds(small_store, tmp_path, served):
+    """OpenLIME's default canvas passes the colour through an 8-bit linear framebuffer (here
+    53.5 dB against the reader, 2 codes at most); the page of ``openlime_page(...,
+    full_precision=True)`` draws the format's own math (measured 159.6 dB, 1 code at most)."""
+    report = export(small_store, tmp_path / "web", fmt="relight")
+    (tmp_path / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
+    coef, weights = read_web(tmp_path / "web")
+    dirs = reference(str(small_store))[0]
+    expected = relit(coef, weights(dirs))
+    got = {}
+    for full in (False, True):
+        (tmp_path / "page.html").write_text(openlime_page(
+            report["width"], report["height"], "rti", "image", "/web/info.json",
+            full_precision=full))
+        with Browser(64, 64) as browser:
+            got[full] = draw_openlime(browser, f"{served}/page.html",
+                                      (report["width"], report["height"]), dirs)
+    db = {full: psnr(got[full], expected) for full in got}
+    print(f"against the reader: default page {db[False]:.1f} dB, full precision {db[True]:.1f}")
+    assert np.abs(got[True] - expected).max() <= 1
+    assert db[True] > 90 and db[True] > db[False] + 20
