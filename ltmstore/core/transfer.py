@@ -20,9 +20,9 @@ DEPTHS = (8, 16, FLOAT)  # what encode_images writes: uint8, uint16 code values,
 
 def power(v: np.ndarray, exponent: float, out: np.ndarray | None = None) -> np.ndarray:
     """``v ** exponent`` of float32 values ``v >= 0`` as ``exp(exponent * log(v))``, in ``out``
-    where given (it may be ``v``): NumPy vectorises float32 ``exp`` and ``log`` on every x86-64
-    but ``power`` only with AVX-512 (2.1x on an AVX2 EPYC; within 7e-7 relative of ``power``,
-    0 at 0). A negative value gives NaN, as ``power`` does."""
+    where given (it may be ``v``): NumPy vectorises float32 ``exp`` and ``log`` with AVX2 but
+    ``power`` only with AVX-512 (2.1x on an AVX2 EPYC; within 7e-7 relative of ``power``, 0 at
+    0). A negative value gives NaN, as ``power`` does."""
     with np.errstate(divide="ignore", invalid="ignore"):
         out = np.log(v, out=out)
         out *= np.float32(exponent)

@@ -24,6 +24,10 @@ from rti_readers import psnr, read_web, reference, relit
 from ltmstore.core.transfer import linear_to_srgb
 from ltmstore.share.export import export
 
+NEEDS_OPENLIME = pytest.mark.skipif(not (OPENLIME_SRC / "LayerRTI.js").is_file(),
+                                    reason=f"OpenLIME's sources absent at {OPENLIME_SRC} (not on "
+                                           "npm; set LTM_OPENLIME_SRC to a checkout's src/)")
+
 
 @pytest.fixture
 def served(tmp_path):
@@ -40,9 +44,7 @@ def served(tmp_path):
 LOWEST = {"ptm": (51.5, 33.4), "hsh": (52.0, 34.8), "bilinear": (52.0, 35.4)}
 
 
-@pytest.mark.skipif(not (OPENLIME_SRC / "LayerRTI.js").is_file(),
-                    reason=f"OpenLIME's sources absent at {OPENLIME_SRC} (not on npm; "
-                           "set LTM_OPENLIME_SRC to a checkout's src/)")
+@NEEDS_OPENLIME
 @pytest.mark.parametrize("basis", list(LOWEST))
 def test_openlime_renders_the_relight_export(basis, small_store, tmp_path, served):
     report = export(small_store, tmp_path / "web", fmt="relight", basis=basis)
@@ -66,9 +68,7 @@ def test_openlime_renders_the_relight_export(basis, small_store, tmp_path, serve
     assert against_relight > LOWEST[basis][1]
 
 
-@pytest.mark.skipif(not (OPENLIME_SRC / "LayerRTI.js").is_file(),
-                    reason=f"OpenLIME's sources absent at {OPENLIME_SRC} (not on npm; "
-                           "set LTM_OPENLIME_SRC to a checkout's src/)")
+@NEEDS_OPENLIME
 def test_a_full_precision_page_draws_what_the_format_holds(small_store, tmp_path, served):
     """OpenLIME's default canvas passes the colour through an 8-bit linear framebuffer (here
     53.5 dB against the reader, 2 codes at most); the page of ``openlime_page(...,
