@@ -32,16 +32,17 @@ from rti_readers import psnr, read_web, relit  # noqa: E402
 from ltmstore.share.export import export  # noqa: E402
 
 
-def drawn(folder: Path, report: dict, dirs: np.ndarray, full_precision: bool) -> np.ndarray:
-    """OpenLIME's canvas ``(n, y, x, 3)`` at ``dirs``, the export served from ``folder``."""
-    if not (folder / "openlime").exists():
-        (folder / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
-    (folder / "page.html").write_text(openlime_page(report["width"], report["height"], "rti",
-                                                    "image", "/web/info.json",
-                                                    full_precision=full_precision))
+def drawn(folder: Path, report: dict, dirs: np.ndarray) -> dict[bool, np.ndarray]:
+    """OpenLIME's canvas ``(n, y, x, 3)`` at ``dirs`` by its default page (``False``) and the
+    full-precision one (``True``), the export served from ``folder``."""
+    (folder / "openlime").symlink_to(OPENLIME_SRC.resolve(), target_is_directory=True)
+    size = (report["width"], report["height"])
+    for full in (False, True):
+        (folder / f"page-{full}.html").write_text(openlime_page(
+            *size, "rti", "image", "/web/info.json", full_precision=full))
     with serve(folder) as url, Browser(64, 64) as browser:
-        return draw_openlime(browser, f"{url}/page.html", (report["width"], report["height"]),
-                             dirs)
+        return {full: draw_openlime(browser, f"{url}/page-{full}.html", size, dirs)
+                for full in (False, True)}
 
 
 def measure(store: str, quality: int | None) -> dict:
@@ -51,8 +52,7 @@ def measure(store: str, quality: int | None) -> dict:
         report = export(store, Path(tmp) / "web", fmt="relight", quality=quality)
         coef, basis = read_web(Path(tmp) / "web")
         reader = relit(coef, basis(dirs))
-        openlime = drawn(Path(tmp), report, dirs, full_precision=False)
-        full = drawn(Path(tmp), report, dirs, full_precision=True)
+        openlime, full = drawn(Path(tmp), report, dirs).values()
     return {"held_out_lights": len(dirs), "quality": report["quality"],
             "ltm_relight_db": round(psnr(store_png, photos), 2),
             "reader_db": round(psnr(reader, photos), 2),

@@ -78,14 +78,13 @@ def test_a_full_precision_page_draws_what_the_format_holds(small_store, tmp_path
     coef, weights = read_web(tmp_path / "web")
     dirs = reference(str(small_store))[0]
     expected = relit(coef, weights(dirs))
-    got = {}
+    size = (report["width"], report["height"])
     for full in (False, True):
-        (tmp_path / "page.html").write_text(openlime_page(
-            report["width"], report["height"], "rti", "image", "/web/info.json",
-            full_precision=full))
-        with Browser(64, 64) as browser:
-            got[full] = draw_openlime(browser, f"{served}/page.html",
-                                      (report["width"], report["height"]), dirs)
+        (tmp_path / f"page-{full}.html").write_text(openlime_page(
+            *size, "rti", "image", "/web/info.json", full_precision=full))
+    with Browser(64, 64) as browser:  # one browser, both pages
+        got = {full: draw_openlime(browser, f"{served}/page-{full}.html", size, dirs)
+               for full in (False, True)}
     db = {full: psnr(got[full], expected) for full in got}
     print(f"against the reader: default page {db[False]:.1f} dB, full precision {db[True]:.1f}")
     assert np.abs(got[True] - expected).max() <= 1
