@@ -37,9 +37,13 @@ HSH_ORDERS = (2, 3)
 # ltmstore.share.relight_web.DEFAULT_QUALITY
 DEFAULT_QUALITY = 95
 
-# ltmstore.share.pca_web.DEFAULT_RESOLUTION and DEFAULT_PLANES
-DEFAULT_RESOLUTION = 16
-DEFAULT_PLANES = 27
+# ltmstore.share.pca_web.PLANES and MAX_PCA_LOSS_DB
+PLANES = (27, 36, 48)
+PCA_MAX_LOSS_DB = 0.25
+
+# ltmstore.share.light_grid.RESOLUTIONS and MAX_LOSS_DB
+GRID_RESOLUTIONS = (16, 24, 32, 48, 64)
+GRID_MAX_LOSS_DB = 0.25
 
 # ltmstore.share.tiles.LAYOUTS and TILE_SIZE
 LAYOUTS = ("image", "deepzoom")
@@ -64,8 +68,10 @@ ORIGINALS = {
     "COLORS": ("ltmstore.share.export", "COLORS"),
     "HSH_ORDERS": ("ltmstore.share.export", "HSH_ORDERS"),
     "DEFAULT_QUALITY": ("ltmstore.share.relight_web", "DEFAULT_QUALITY"),
-    "DEFAULT_RESOLUTION": ("ltmstore.share.pca_web", "DEFAULT_RESOLUTION"),
-    "DEFAULT_PLANES": ("ltmstore.share.pca_web", "DEFAULT_PLANES"),
+    "GRID_RESOLUTIONS": ("ltmstore.share.light_grid", "RESOLUTIONS"),
+    "GRID_MAX_LOSS_DB": ("ltmstore.share.light_grid", "MAX_LOSS_DB"),
+    "PLANES": ("ltmstore.share.pca_web", "PLANES"),
+    "PCA_MAX_LOSS_DB": ("ltmstore.share.pca_web", "MAX_PCA_LOSS_DB"),
     "LAYOUTS": ("ltmstore.share.tiles", "LAYOUTS"),
     "TILE_SIZE": ("ltmstore.share.tiles", "TILE_SIZE"),
     "IIIF_URL": ("ltmstore.share.static_tiles", "DEFAULT_URL"),

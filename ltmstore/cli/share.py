@@ -7,12 +7,14 @@ import argparse
 from ltmstore.cli.args import number, numbers
 from ltmstore.cli.names import (
     COLORS,
-    DEFAULT_PLANES,
     DEFAULT_QUALITY,
-    DEFAULT_RESOLUTION,
     FORMATS,
+    GRID_MAX_LOSS_DB,
+    GRID_RESOLUTIONS,
     HSH_ORDERS,
     LAYOUTS,
+    PCA_MAX_LOSS_DB,
+    PLANES,
     TILE_SIZE,
     WEB_BASES,
 )
@@ -45,15 +47,21 @@ def register(sub) -> None:
                    help="relight: the basis of the web format: bilinear (the store's "
                    "relighting, PCA-compressed), or ptm / hsh fitted to it (default: "
                    "%(default)s)")
-    p.add_argument("--resolution", type=int, default=DEFAULT_RESOLUTION,
-                   help="relight bilinear: light grid nodes per side (default: %(default)s)")
-    p.add_argument("--planes", type=int, default=DEFAULT_PLANES,
-                   help="relight bilinear: PCA planes, a multiple of 3 (default: "
-                   "%(default)s)")
+    p.add_argument("--resolution", type=_auto_int, default="auto",
+                   help="relight bilinear: light grid nodes per side, 4-64, or auto: the "
+                   f"smallest of {', '.join(map(str, GRID_RESOLUTIONS))} whose grid costs at most "
+                   f"{GRID_MAX_LOSS_DB} dB against the held-out photographs (the viewer draws a "
+                   "light between the four nodes around it), among those whose relighting is "
+                   "affordable at the image's size (default: %(default)s)")
+    p.add_argument("--planes", type=_auto_int, default="auto",
+                   help="relight bilinear: PCA planes, a multiple of 3 up to 48, or auto: the "
+                   f"fewest of {', '.join(map(str, PLANES))} whose PCA costs at most "
+                   f"{PCA_MAX_LOSS_DB} dB against the held-out photographs, else {PLANES[0]} "
+                   "(default: %(default)s)")
     p.add_argument("--color", default="rgb", choices=COLORS,
                    help="ptm: a polynomial per channel (rgb) or luminance times colour (lrgb) "
                    "(default: %(default)s)")
-    p.add_argument("--quality", type=_quality, default="auto",
+    p.add_argument("--quality", type=_auto_int, default="auto",
                    help="relight: JPEG quality of the planes, 1-100, or auto: for the bilinear "
                    "basis the lowest of 95, 97, 98 and 100 whose JPEG costs at most 0.5 dB "
                    "against ltm relight at the lights the fidelity line scores (else "
@@ -71,15 +79,14 @@ def register(sub) -> None:
     register_view(sub)
 
 
-def _quality(text: str) -> int | None:
-    """``--quality``: ``auto`` (None) or a JPEG quality."""
+def _auto_int(text: str) -> int | None:
+    """``--quality`` and ``--resolution``: ``auto`` (None) or a whole number."""
     if text == "auto":
         return None
     try:
         return int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: expected auto or a JPEG quality from 1 to 100") from None
+        raise argparse.ArgumentTypeError(f"{text!r}: expected auto or a whole number") from None
 
 
 def cmd_export(a: argparse.Namespace) -> None:
@@ -98,6 +105,20 @@ def cmd_export(a: argparse.Namespace) -> None:
         tried = ", ".join(f"{q}: {v:.2f}" for q, v in r["jpeg"]["loss_db"].items())
         print(f"planes JPEG quality {r['quality']} (auto; dB the JPEG costs against ltm "
               f"relight: {tried})")
+    if "grid" in r:
+        grid = r["grid"]
+        if "loss_db" in grid:
+            tried = ", ".join(f"{n}: {v:.2f}" for n, v in grid["loss_db"].items())
+            what = "dB the grid costs against the held-out photographs"
+        else:
+            tried = ", ".join(f"{n}: {v:.1f}" for n, v in grid["db_vs_store"].items())
+            what = "its dB against ltm relight"
+        print(f"light grid {grid['resolution']} x {grid['resolution']} nodes (auto; {what}: "
+              f"{tried})")
+    if "pca" in r:
+        tried = ", ".join(f"{n}: {v:.2f}" for n, v in r["pca"]["loss_db"].items())
+        print(f"{r['terms']} PCA planes (auto; dB the PCA costs against the held-out "
+              f"photographs: {tried})")
     if "fidelity" in r:
         print(r["fidelity"]["text"])
 

@@ -47,8 +47,8 @@ def _check(fmt: str, order: int, basis: str, color: str, quality: int | None) ->
 def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order: int = 3,
            basis: str = "bilinear", color: str = "rgb",
            quality: int | None = None, overwrite: bool = False,
-           resolution: int = pca_web.DEFAULT_RESOLUTION,
-           planes: int = pca_web.DEFAULT_PLANES, score: bool = True,
+           resolution: int | None = None,
+           planes: int | None = None, score: bool = True,
            layout: str = "image", tile_size: int = tiles.TILE_SIZE,
            overlap: int = tiles.OVERLAP) -> dict:
     """Export a reconstructed store to an RTI format.
@@ -76,8 +76,12 @@ def export(store: str | os.PathLike, out: str | os.PathLike, *, fmt: str, order:
         JPEG costs at most 0.5 dB at the capture's held-out lights
         (:mod:`ltmstore.share.jpeg_quality`), else 95.
     overwrite : bool
-    resolution, planes : int
-        ``bilinear`` only: grid nodes per side and PCA planes.
+    resolution : int, optional
+        ``bilinear`` only: light grid nodes per side; default: the smallest whose grid costs at
+        most 0.25 dB at the capture's held-out lights (:mod:`ltmstore.share.light_grid`).
+    planes : int, optional
+        ``bilinear`` only: PCA planes; default: the fewest whose PCA costs at most 0.25 dB at
+        the capture's held-out lights (:func:`ltmstore.share.pca_web.choose_planes`), else 27.
     score : bool
         Also evaluate the written coefficients at the capture's held-out lights (or its own
         lights) against ``ltm relight`` and the photographs (:mod:`ltmstore.share.fidelity`).
@@ -147,8 +151,9 @@ def _label(fmt: str, basis: str, order: int) -> str:
     return f"relight {basis}" if fmt == "relight" else fmt
 
 
-def _export_bilinear(store, out, quality: int, overwrite: bool, resolution: int,
-                     planes: int, check: fidelity.Checkpoints | None, pyramid: dict) -> dict:
+def _export_bilinear(store, out, quality: int, overwrite: bool, resolution: int | None,
+                     planes: int | None, check: fidelity.Checkpoints | None, pyramid: dict
+                     ) -> dict:
     """The web format carrying the store's relighting (:mod:`ltmstore.share.pca_web`),
     its planes laid out as ``pyramid`` says (:func:`ltmstore.share.tiles.tile_planes`)."""
     with atomic_output(out, overwrite=overwrite, folder=True, inputs=(store,)) as tmp:
@@ -156,11 +161,12 @@ def _export_bilinear(store, out, quality: int, overwrite: bool, resolution: int,
                              checkpoints=check)
         tiled = tiles.tile_planes(tmp, **{**pyramid, "quality": info["quality"]})
     report = {"path": os.fspath(out), "format": "relight", "basis": "bilinear",
-              "color": "rgb", "terms": planes, "width": info["width"],
+              "color": "rgb", "terms": info["planes"], "width": info["width"],
               "height": info["height"], "directions": info["directions"],
               "white": CAPTURE_WHITE, "quality": info["quality"], **tiled}
-    if "jpeg" in info:
-        report["jpeg"] = info["jpeg"]
+    for key in ("jpeg", "grid", "pca"):
+        if key in info:
+            report[key] = info[key]
     if check is not None:
         report["fidelity"] = fidelity.summary(
             "relight bilinear", info["images"], check)

@@ -43,53 +43,19 @@ import numpy as np
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import linear_to_srgb
-from ltmstore.share import jpeg_quality
-from ltmstore.share.fidelity import Checkpoints, banded
+from ltmstore.share import jpeg_quality, light_grid
+from ltmstore.share.fidelity import Checkpoints, banded, display_images, psnr
+from ltmstore.share.light_grid import grid_directions, node_weights
 from ltmstore.share.relight_web import DEFAULT_QUALITY
 
 if TYPE_CHECKING:
     import xarray as xr
 
-DEFAULT_RESOLUTION = 16  # grid nodes per side: 256 light directions
-DEFAULT_PLANES = 27  # PCA planes (9 JPEG images)
-RESOLUTIONS = (4, 32)  # the least and the most nodes per side
-MAX_PLANES = 48
-MIN_ELEVATION_Z = 0.02  # grid nodes on the horizon are relit a hair above it
+PLANES = (27, 36, 48)  # PCA planes (9, 12, 16 JPEG images) tried in this order
+MAX_PCA_LOSS_DB = 0.25  # the most the PCA may cost against the held-out photographs
+RESOLUTION_LIMITS = (4, 64)  # the least and the most nodes a side (the viewers take any)
+MAX_PLANES = PLANES[-1]
 SAMPLE_PIXELS = 2**15  # at most this many pixels for the PCA's covariance
-
-
-def grid_directions(resolution: int) -> np.ndarray:
-    """Unit light directions ``(R^2, 3)`` of the octahedral grid nodes, node ``(i, j)`` at row
-    ``i + j R`` (the order of Relight's and OpenLIME's ``basePixelOffset``)."""
-    t = np.linspace(-1.0, 1.0, resolution)
-    x, y = np.meshgrid(t, t, indexing="xy")  # x varies along a row: index i + j R
-    lx, ly = (x - y) / 2, (x + y) / 2
-    lz = np.maximum(1 - np.abs(lx) - np.abs(ly), MIN_ELEVATION_Z)
-    d = np.column_stack([lx.ravel(), ly.ravel(), lz.ravel()])
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
-def node_weights(directions: np.ndarray, resolution: int) -> np.ndarray:
-    """Bilinear weights ``(n, R^2)`` of the grid nodes at unit light ``directions (n, 3)``, as
-    the viewers compute them (OpenLIME ``setLight`` + ``BLN.lightWeights``)."""
-    d = np.asarray(directions, np.float64)
-    x, y = d[:, 0].copy(), d[:, 1].copy()
-    r = np.hypot(x, y)
-    shrink = np.where(r > 1, 1 / np.maximum(r, 1e-300), 1.0)  # to the unit disk
-    x, y = x * shrink, y * shrink
-    z = np.sqrt(np.maximum(0.0, 1 - x * x - y * y))
-    s = np.abs(x) + np.abs(y) + z
-    u = ((x + y) / s + 1) / 2 * (resolution - 1)
-    v = ((y - x) / s + 1) / 2 * (resolution - 1)
-    su = np.clip(np.floor(u), 0, resolution - 2).astype(int)
-    sv = np.clip(np.floor(v), 0, resolution - 2).astype(int)
-    du, dv = u - su, v - sv
-    w = np.zeros((len(d), resolution * resolution))
-    rows = np.arange(len(d))
-    for (i, j), weight in (((0, 0), (1 - du) * (1 - dv)), ((1, 0), du * (1 - dv)),
-                           ((0, 1), (1 - du) * dv), ((1, 1), du * dv)):
-        np.add.at(w, (rows, su + i + (sv + j) * resolution), weight)
-    return w
 
 
 def evaluate(coef: np.ndarray, mean: np.ndarray, vectors: np.ndarray, resolution: int,
@@ -102,12 +68,13 @@ def evaluate(coef: np.ndarray, mean: np.ndarray, vectors: np.ndarray, resolution
     return m[:, None, None, :] + np.einsum("yxp,lkp->lyxk", coef, b)
 
 
-def check(resolution: int, planes: int) -> None:
-    """Refuse a grid resolution or a number of planes the format cannot hold."""
-    lo, hi = RESOLUTIONS
-    if not lo <= resolution <= hi:
+def check(resolution: int | None, planes: int | None) -> None:
+    """Refuse a grid resolution or a number of planes the format cannot hold (None: chosen by
+    :func:`write`)."""
+    lo, hi = RESOLUTION_LIMITS
+    if resolution is not None and not lo <= resolution <= hi:
         raise LtmError(f"--resolution {resolution!r} must be from {lo} to {hi} grid nodes a side")
-    if not (3 <= planes <= MAX_PLANES and planes % 3 == 0):
+    if planes is not None and not (3 <= planes <= MAX_PLANES and planes % 3 == 0):
         raise LtmError(f"--planes {planes!r} must be a multiple of 3 from 3 to {MAX_PLANES}")
 
 
@@ -136,56 +103,122 @@ class _Projection:
 
 
 class _Renderer:
-    """A store relit at the grid's directions, as display values ``(pixels, R^2 * 3)``."""
+    """A store relit at light directions, as display values."""
 
-    def __init__(self, store: str | os.PathLike, directions: np.ndarray) -> None:
-        self.ds, self.directions = open_store(store), directions
+    def __init__(self, store: str | os.PathLike) -> None:
+        self.ds = open_store(store)
         self.transfer = self.ds.attrs.get("acquisition", {}).get("transfer", "srgb")
-        self.relit = self._relit(self.ds)
         self.shape = (self.ds.sizes["y"], self.ds.sizes["x"])
 
-    def _relit(self, ds: xr.Dataset) -> xr.DataArray:
-        """``ds`` relit at the grid's directions, lazily."""
+    @staticmethod
+    def _relit(ds: xr.Dataset, directions: np.ndarray) -> xr.DataArray:
+        """``ds`` relit at ``directions``, lazily."""
         from ltmstore.stages.relight import relight  # share sits above stages
 
         with warnings.catch_warnings():  # nodes far from the lights are the model's own
             warnings.simplefilter("ignore")  # extrapolation: that is what the grid asks
-            return relight(ds, directions=self.directions)
+            return relight(ds, directions=directions)
 
-    def project(self, mean: np.ndarray, project: np.ndarray) -> np.ndarray:
+    def _display(self, ds: xr.Dataset, directions: np.ndarray) -> np.ndarray:
+        """Display values ``(light, y, x, color)`` of ``ds`` relit at ``directions``."""
+        relit = self._relit(ds, directions)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return _display(relit.values, self.transfer)
+
+    def window(self, directions: np.ndarray) -> np.ndarray:
+        """Display values ``(light, y, x, color)`` of the window
+        :func:`ltmstore.share.light_grid.window` relit at ``directions``."""
+        wy, wx = light_grid.window(self.shape)
+        return self._display(self.ds.isel(y=wy, x=wx), directions)
+
+    def project(self, directions: np.ndarray, mean: np.ndarray, project: np.ndarray
+                ) -> np.ndarray:
         """Every pixel's coefficients ``(y, x, P)``: ``project (P, D)`` applied to its display
-        values less ``mean (D,)``, block by block as the relighting computes them (one graph
-        computed once: a graph per band of rows had been culled again for each band, minutes
-        at 24 MP)."""
+        values at ``directions`` less ``mean (D,)``, block by block as the relighting computes
+        them (one graph computed once: a graph per band of rows had been culled again for each
+        band, minutes at 24 MP)."""
         coef = np.empty((*self.shape, len(project)), np.float32)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            da.store(self.relit.data, _Projection(coef, mean.astype(np.float32),
-                                                  project.T.copy(), self.transfer), lock=False)
+            da.store(self._relit(self.ds, directions).data,
+                     _Projection(coef, mean.astype(np.float32), project.T.copy(),
+                                 self.transfer), lock=False)
         return coef
 
-    def sample(self) -> np.ndarray:
-        """Display values of a regular subsample of at most ``SAMPLE_PIXELS`` pixels: the
-        store strided to every k-th pixel both ways and relit there only (rows picked one by
-        one had the relighting compute the whole band of rows each lies in)."""
+    @property
+    def strided(self) -> slice:
+        """The rows and the columns :meth:`sample` takes: every k-th, at most
+        ``SAMPLE_PIXELS`` pixels."""
         step = max(1, int(np.ceil(np.sqrt(self.shape[0] * self.shape[1] / SAMPLE_PIXELS))))
-        strided = slice(step // 2, None, step)
-        relit = self._relit(self.ds.isel(y=strided, x=strided))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            v = _display(relit.values, self.transfer)  # (light, y, x, color)
+        return slice(step // 2, None, step)
+
+    def sample(self, directions: np.ndarray) -> np.ndarray:
+        """Display values ``(pixels, n * 3)`` at ``directions`` of a regular subsample of at most
+        ``SAMPLE_PIXELS`` pixels: the store strided to every k-th pixel both ways and relit
+        there only (rows picked one by one had the relighting compute the whole band of rows
+        each lies in)."""
+        v = self._display(self.ds.isel(y=self.strided, x=self.strided), directions)
         return np.ascontiguousarray(v.transpose(1, 2, 0, 3)).reshape(-1, v.shape[0] * 3)
 
 
 def principal(sample: np.ndarray, planes: int) -> tuple[np.ndarray, np.ndarray]:
     """Mean ``(D,)`` and the ``planes`` leading eigenvectors ``(D, planes)`` of the sample's
-    covariance (pixels ``(n, D)``), largest first."""
+    covariance (pixels ``(n, D)``), largest first: the leading right singular vectors of the
+    centred sample (:func:`scipy.sparse.linalg.svds`; at 64 nodes a side, D = 12,288, the
+    covariance's full eigendecomposition took minutes)."""
+    from scipy.sparse.linalg import svds
+
     mean = sample.mean(axis=0, dtype=np.float64)
     centred = sample - mean.astype(np.float32)
-    cov = centred.T.astype(np.float64) @ centred.astype(np.float64)
-    values, vectors = np.linalg.eigh(cov)
-    keep = np.argsort(values)[::-1][:planes]
-    return mean, vectors[:, keep]
+    _, values, vt = svds(centred, k=min(planes, min(centred.shape) - 1), random_state=0)
+    vectors = vt[np.argsort(values)[::-1]].T
+    if vectors.shape[1] < planes:  # fewer pixels than planes: the rest carry nothing
+        vectors = np.pad(vectors, ((0, 0), (0, planes - vectors.shape[1])))
+    return mean, vectors
+
+
+def choose_planes(sample: np.ndarray, mean: np.ndarray, vectors: np.ndarray, resolution: int,
+                  check: Checkpoints, strided: slice) -> tuple[int, dict]:
+    """The fewest of :data:`PLANES` whose PCA costs at most :data:`MAX_PCA_LOSS_DB`.
+
+    Parameters
+    ----------
+    sample : ndarray, shape (pixels, D)
+        Display values of the sampled pixels at the grid's nodes.
+    mean, vectors : ndarray
+        The sample's mean ``(D,)`` and leading eigenvectors ``(D, max(PLANES))``.
+    resolution : int
+        The grid's nodes a side.
+    check : Checkpoints
+        The held-out lights with their photographs.
+    strided : slice
+        The rows and the columns of the sample.
+
+    Returns
+    -------
+    planes : int
+        The number chosen (the most where none is within the bound).
+    record : dict
+        ``planes``, ``max_loss_db`` and ``loss_db``: each number tried and what its PCA cost
+        on the sampled pixels at the held-out lights, in dB against the photographs, beside the
+        grid's nodes drawn exactly.
+    """
+    photos = check.photos[:, strided, strided].reshape(len(check.photos), -1, 1, 3)
+    coef = ((sample - mean) @ vectors)[:, None, :]  # (pixels, 1, P)
+
+    weights = node_weights(check.directions, resolution)
+    grid = display_images(np.einsum("ln,ink->lik", weights, sample.reshape(
+        len(sample), resolution ** 2, 3)))[:, :, None, :]
+    reference = psnr(grid, photos)
+    losses: dict[int, float] = {}
+    for planes in PLANES:
+        images = evaluate(coef[..., :planes], mean, vectors[:, :planes], resolution,
+                          check.directions)
+        losses[planes] = round(reference - psnr(display_images(images), photos), 3)
+        if losses[planes] <= MAX_PCA_LOSS_DB:
+            break
+    return planes, {"planes": planes, "max_loss_db": MAX_PCA_LOSS_DB, "loss_db": losses}
 
 
 def quantised_basis(mean: np.ndarray, vectors: np.ndarray
@@ -201,7 +234,7 @@ def quantised_basis(mean: np.ndarray, vectors: np.ndarray
 
 
 def write(store: str | os.PathLike, folder: str | os.PathLike, *,
-          resolution: int = DEFAULT_RESOLUTION, planes: int = DEFAULT_PLANES,
+          resolution: int | None = None, planes: int | None = None,
           quality: int | None = None, checkpoints: Checkpoints | None = None) -> dict:
     """Relight the store at the grid's nodes and write Relight's ``bilinear`` web format.
 
@@ -211,17 +244,20 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
         A reconstructed store.
     folder : path-like
         An existing empty folder: ``info.json`` and ``plane_<j>.jpg`` are written into it.
-    resolution : int
-        Grid nodes per side (``resolution^2`` light directions).
-    planes : int
-        PCA planes, a multiple of 3.
+    resolution : int, optional
+        Grid nodes per side (``resolution^2`` light directions); default: chosen at the
+        ``checkpoints`` (:func:`ltmstore.share.light_grid.choose`), else the smallest of
+        :data:`ltmstore.share.light_grid.RESOLUTIONS`.
+    planes : int, optional
+        PCA planes, a multiple of 3; default: chosen at the held-out lights of the
+        ``checkpoints`` (:func:`choose_planes`), else the fewest of :data:`PLANES`.
     quality : int, optional
         JPEG quality of the planes; default: chosen at the ``checkpoints``
         (:func:`ltmstore.share.jpeg_quality.choose`), else Relight's default, 95.
     checkpoints : Checkpoints, optional
         Lights and ``ltm relight``'s images there (:func:`ltmstore.share.fidelity.checkpoints`)
-        to choose the quality by and to evaluate the written file at (its quantised basis and
-        its planes as decoded from the JPEG files).
+        to choose the grid and the quality by and to evaluate the written file at (its
+        quantised basis and its planes as decoded from the JPEG files).
 
     Returns
     -------
@@ -229,16 +265,33 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
         ``width``, ``height``, ``directions`` (grid nodes), ``planes``, ``quality`` and, with
         ``checkpoints``, ``images``: 8-bit display values ``(n, y, x, 3)`` at their lights;
         where the quality was chosen, ``jpeg`` (:func:`ltmstore.share.jpeg_quality.choose`'s
-        record).
+        record); where the grid was chosen, ``grid`` (:func:`ltmstore.share.light_grid.choose`'s
+        record); where the planes were, ``pca`` (:func:`choose_planes`'s record).
     """
     check(resolution, planes)
     folder = Path(folder)
-    render = _Renderer(store, grid_directions(resolution))
-    mean, vectors = principal(render.sample(), planes)
+    render = _Renderer(store)
+    grid = None
+    if resolution is None and checkpoints is not None:
+        resolution, grid = light_grid.choose(render.window, checkpoints, render.shape)
+    elif resolution is None:
+        resolution = light_grid.RESOLUTIONS[0]
+    directions = grid_directions(resolution)
+    sample = render.sample(directions)
+    pca = None
+    if planes is None and checkpoints is not None and checkpoints.photos is not None:
+        mean, vectors = principal(sample, PLANES[-1])
+        planes, pca = choose_planes(sample, mean, vectors, resolution, checkpoints,
+                                    render.strided)
+        vectors = vectors[:, :planes]
+    else:
+        planes = PLANES[0] if planes is None else planes
+        mean, vectors = principal(sample, planes)
+    del sample
     basis_bytes, rng, mean_q, vec_q = quantised_basis(mean, vectors)
     project = np.linalg.pinv(vec_q).astype(np.float32)  # (P, D): least squares on the bytes
     height, width = render.shape
-    coef = render.project(mean_q, project)
+    coef = render.project(directions, mean_q, project)
     lo, hi = coef.reshape(-1, planes).min(axis=0), coef.reshape(-1, planes).max(axis=0)
     scale = np.where(hi > lo, hi - lo, 1e-6)
     coef -= lo  # in place, as (coef - lo) / scale * 255 rounded: no float copies at 24 MP
@@ -273,6 +326,10 @@ def write(store: str | os.PathLike, folder: str | os.PathLike, *,
            "quality": quality}
     if choice is not None:
         out["jpeg"] = choice
+    if grid is not None:
+        out["grid"] = grid
+    if pca is not None:
+        out["pca"] = pca
     if checkpoints is not None:
         out["images"] = images(codes)
     return out
