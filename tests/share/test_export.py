@@ -20,6 +20,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import zarr
@@ -352,3 +353,22 @@ def test_the_pca_keeps_the_fewest_planes_that_cost_a_quarter_db(held_out_store, 
     drawn = [psnr(relit(coef, basis(dirs)), photos)
              for coef, basis in (read_web(tmp_path / "auto"), read_web(tmp_path / "p27"))]
     assert abs((drawn[0] - drawn[1]) - (losses[27] - losses[48])) < 0.2, (drawn, losses)
+
+
+def test_a_capture_that_never_changes_with_the_light_exports(tmp_path):
+    """Every photograph the same grey: the store relights it the same at every light, so the
+    web export's PCA has nothing to hold (its sample is constant). The export writes the grey
+    at every light."""
+    from dome_helpers import write_capture
+
+    lp = write_capture(tmp_path / "grey", np.ones(49))
+    for image in lp.parent.glob("*.png"):
+        cv2.imwrite(str(image), np.full_like(cv2.imread(str(image)), 128))
+    store = tmp_path / "grey.zarr"
+    for args in (["ingest-rti", lp, store, "--holdout-lights", "6"], ["reconstruct", store],
+                 ["export", store, tmp_path / "web", "--format", "relight"]):
+        done = run_ltm(*args)
+        assert done.returncode == 0, done.stderr
+    coef, basis = read_web(tmp_path / "web")
+    dirs = np.array([[0.3, 0.2, 0.93], [-0.5, 0.1, 0.86], [0.0, 0.0, 1.0]])
+    assert np.abs(relit(coef, basis(dirs)) - 128).max() <= 1
