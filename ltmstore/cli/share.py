@@ -80,7 +80,7 @@ def register(sub) -> None:
 
 
 def _auto_int(text: str) -> int | None:
-    """``--quality`` and ``--resolution``: ``auto`` (None) or a whole number."""
+    """``--quality``, ``--resolution`` and ``--planes``: ``auto`` (None) or a whole number."""
     if text == "auto":
         return None
     try:

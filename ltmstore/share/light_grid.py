@@ -23,7 +23,7 @@ from ltmstore.share.fidelity import Checkpoints, display_images, psnr
 RESOLUTIONS = (16, 24, 32, 48, 64)  # nodes a side, tried in this order
 MAX_LOSS_DB = 0.25  # the most the grid may cost against the held-out photographs
 MIN_DB_VS_STORE = 50.0  # without held-out photographs: the grid's least PSNR against ltm relight
-NODE_PIXELS = 2**28  # pixels x grid nodes the export may relight (about 2.5 min at 0.1 MP here)
+NODE_PIXELS = 2**28  # pixels x grid nodes the export may relight (0.1 MP at 48: 88 s here)
 WINDOW = 512  # side of the window the choice is made on, in pixels at most
 MIN_ELEVATION_Z = 0.02  # grid nodes on the horizon are relit a hair above it
 
