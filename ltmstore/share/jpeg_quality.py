@@ -19,7 +19,7 @@ from collections.abc import Callable
 import numpy as np
 from PIL import Image
 
-from ltmstore.share.fidelity import psnr
+from ltmstore.share.fidelity import central_window, psnr
 
 QUALITIES = (95, 97, 98, 100)  # tried in this order
 MAX_LOSS_DB = 0.5  # the most the planes' JPEG may cost the relit images
@@ -53,11 +53,7 @@ def round_trip(codes: np.ndarray, quality: int) -> np.ndarray:
 
 def window(shape: tuple[int, int]) -> tuple[slice, slice]:
     """Rows and columns of the central window of an image of ``shape (y, x)``."""
-    def span(n: int) -> slice:
-        size = min(n, WINDOW)
-        start = (n - size) // 2 // BLOCK * BLOCK
-        return slice(start, start + size)
-    return span(shape[0]), span(shape[1])
+    return central_window(shape, WINDOW, BLOCK)
 
 
 def choose(codes: np.ndarray, images: Callable[[np.ndarray], np.ndarray],

@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ltmstore.share.fidelity import Checkpoints, display_images, psnr
+from ltmstore.share.fidelity import Checkpoints, central_window, display_images, psnr
 
 RESOLUTIONS = (16, 24, 32, 48, 64)  # nodes a side, tried in this order
 MAX_LOSS_DB = 0.25  # the most the grid may cost against the held-out photographs
@@ -66,10 +66,7 @@ def grid_directions(resolution: int) -> np.ndarray:
 
 def window(shape: tuple[int, int]) -> tuple[slice, slice]:
     """Rows and columns of the central window of an image of ``shape (y, x)``."""
-    def span(n: int) -> slice:
-        size = min(n, WINDOW)
-        return slice((n - size) // 2, (n - size) // 2 + size)
-    return span(shape[0]), span(shape[1])
+    return central_window(shape, WINDOW)
 
 
 def choose(relit: Callable[[np.ndarray], np.ndarray], check: Checkpoints,
