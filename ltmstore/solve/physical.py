@@ -69,6 +69,7 @@ N_ITER = 10  # ... and from the better of them, per pixel
 # ... or from a given start (a fit of the same pixels on more cells: a held-out fold,
 # ltmstore.solve.confidence.expected_error), before the robust refit
 WARM_ITER = 5
+START_ALPHAS = (0.3, 0.1)  # roughness of the flat and of the mirror start (_starts)
 ROBUST = 3.0  # Cauchy scale, in robust standard deviations of a pixel's residuals
 DAMP_CELLS = 2.0  # the residual's weight falls as exp(-(distance / DAMP_CELLS cells)^2)
 # --method auto chooses the residual's weight by held-out error (ltmstore.solve.select): on
@@ -387,12 +388,12 @@ def _starts(lights: Lights, y: np.ndarray, w: np.ndarray) -> list[np.ndarray]:
     pixel's brightest observation (relative to its fall-off) into the camera, with a sharp one."""
     n = len(y)
     flat = np.zeros((n, 6))
-    flat[:, 4] = np.log(0.3)
+    flat[:, 4] = np.log(START_ALPHAS[0])
     brightest = np.argmax(np.where(w > 0, y / lights.g, -np.inf), axis=1)
     half = lights.half[:, np.arange(n), brightest].T
     mirror = np.zeros((n, 6))
     mirror[:, 0], mirror[:, 1] = -half[:, 0] / half[:, 2], -half[:, 1] / half[:, 2]
-    mirror[:, 4] = np.log(0.1)
+    mirror[:, 4] = np.log(START_ALPHAS[1])
     return [_linear_terms(_clip(t), lights, y, w) for t in (flat, mirror)]
 
 
@@ -463,12 +464,17 @@ def far_lights(directions: np.ndarray, n: int, lobe: str = "ggx",
                   gain, far=True, lobe=lobe)
 
 
-def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.ndarray:
+def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER,
+               compiled: bool = True) -> np.ndarray:
     """Parameters ``(n, 3, 6)`` (per colour channel) fitted to linear RGB ``rgb (n, M, 3)``
     observed at every light: the normal and roughness from the luminance (one nonlinear fit),
-    albedo, lobe strength and floor per channel (linear least squares at that geometry)."""
+    albedo, lobe strength and floor per channel (linear least squares at that geometry). Far
+    lights without shadows take :func:`ltmstore.solve.physical_far.fit_colour` (unless
+    ``compiled`` or :data:`COMPILED` is off): the same steps pixel by pixel."""
     from ltmstore.core.dims import LUMA
 
+    if compiled and COMPILED and lights.far and len(rgb) and (lights.g == 1).all():
+        return _far_fit_colour(rgb, lights, n_iter=n_iter)
     luminance = rgb @ LUMA
     theta, w = fit_parameters(luminance, np.ones_like(luminance), lights, n_iter=n_iter)
     basis = _basis(theta, lights)  # the same geometry for the three channels
@@ -479,6 +485,20 @@ def fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int = N_ITER) -> np.n
         basis[theta[:, 4] >= np.log(ALPHA_RANGE[1]), 1] = 0.0
     return np.stack([_linear_terms(theta, lights, rgb[..., c], w, basis=basis)
                      for c in range(3)], axis=1)
+
+
+def _far_fit_colour(rgb: np.ndarray, lights: Lights, *, n_iter: int) -> np.ndarray:
+    """:func:`fit_colour` at far lights through the compiled
+    :func:`ltmstore.solve.physical_far.fit_colour` (its steps as :func:`fit_parameters`')."""
+    from ltmstore.core.dims import LUMA
+    from ltmstore.solve import physical_far
+
+    out = np.empty((len(rgb), 3, 6))
+    physical_far.fit_colour(np.ascontiguousarray(rgb, dtype=np.float32),
+                            *far_directions(lights), lights.lobe == "beckmann", LUMA,
+                            np.log(START_ALPHAS), START_ITER, n_iter, max(n_iter // 2, 1),
+                            CONVERGED, ROBUST, out)
+    return out
 
 
 def render_colour(theta: np.ndarray, lights: Lights, *, compiled: bool = True) -> np.ndarray:

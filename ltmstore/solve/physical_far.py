@@ -23,7 +23,15 @@ reorders sums (no assumption that values are finite). ``error_model="numpy"``: a
 zero gives infinity or NaN instead of a check and a branch per division, which is what lets
 LLVM vectorise the loop over lights of :func:`_system` (float32 SIMD lanes; 2.2x less CPU per
 pixel and iteration on the coin, 48 lights: 0.31 against 0.69 us; the whole Levenberg-Marquardt
-1.6x). :func:`_cost` stays scalar: vectorised it was slower (0.21 against 0.16 us).
+1.6x) and of :func:`_cost` (on an AMD EPYC with AVX2: 0.09 against 0.26 us on the coin's 40
+lights, 0.21 against 1.19 us on loewenkopf's 200; an older CPU had found it slower, 0.21 against
+0.16 us).
+
+:func:`fit_colour` is the whole colour fit of :func:`ltmstore.solve.physical.fit_colour` (both
+starts, the better one continued, the robust refit, each channel's linear terms) pixel by pixel,
+without NumPy's ``(pixels, lights)`` temporaries between the steps: with the vectorised cost,
+``ltm reconstruct``'s refinement 8-10 % faster on the coin, the icon, loewenkopf and a 1 MP
+SynthRTI capture (``docs/benchmarks.md``).
 """
 
 from __future__ import annotations
@@ -55,7 +63,7 @@ def _beckmann(ndoth, a2):  # pragma: no cover - compiled
     return dist, dd_dc, dist * (np.float32(2) * tan2 / a2 - np.float32(2))
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _cost(theta, toward, half, y, w, beckmann):  # pragma: no cover - compiled
     """Weighted squared error of one pixel's model at ``theta (6,)`` (float32 sums), its lobe
     GGX or ``beckmann``."""
@@ -164,9 +172,15 @@ def _system(theta, toward, half, y, w, beckmann, jtj, grad):  # pragma: no cover
 
 @njit(cache=True, error_model="numpy")
 def _solve(a, b, out):  # pragma: no cover - compiled
-    """``out = a^-1 b`` for one ``(6, 6)`` system: Gaussian elimination, partial pivoting
-    (``a`` and ``b`` are overwritten). A zero pivot gives NaN, a step no pixel keeps."""
-    n = 6  # a constant: the loops unroll
+    """``out = a^-1 b`` for one step's ``(6, 6)`` system (:func:`_gauss`)."""
+    _gauss(a, b, out, 6)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _gauss(a, b, out, n):  # pragma: no cover - compiled
+    """``out = a^-1 b`` for one ``(n, n)`` system: Gaussian elimination, partial pivoting (``a``
+    and ``b`` are overwritten). A zero pivot gives NaN, a step no pixel keeps. Inlined where
+    ``n`` is a constant, whose loops then unroll (a 6 x 6 solve 25 % faster)."""
     for col in range(n):
         pivot = col
         for row in range(col + 1, n):
@@ -208,42 +222,157 @@ def levenberg_marquardt(theta, toward, half, y, w, beckmann, n_iter,
     ``n_iter`` steps, fewer where a step lowers the pixel's cost by at most ``tol`` times it or
     the damping passes :data:`DAMPING_MAX`. Returns each pixel's final cost ``(n,)``."""
     costs = np.empty(len(theta))
-    jtj, grad = np.empty((6, 6)), np.empty(6)
-    system, rhs, step, trial = np.empty((6, 6)), np.empty(6), np.empty(6), np.empty(6)
+    work = _scratch()
     for i in range(len(theta)):
-        _clip(theta[i])
-        cost = _cost(theta[i], toward, half, y[i], w[i], beckmann)
-        lam = 1e-2
-        moved = True  # the normal equations are those of theta[i] until it moves
-        for _ in range(n_iter):
-            if moved:
-                _system(theta[i], toward, half, y[i], w[i], beckmann, jtj, grad)
-            for a in range(6):
-                for b in range(6):
-                    system[a, b] = jtj[a, b]
-                system[a, a] += lam * (jtj[a, a] + 1e-12)
-                rhs[a] = -grad[a]
-            _solve(system, rhs, step)
-            finite = True
-            for a in range(6):
-                trial[a] = theta[i, a] + step[a]
-                finite = finite and np.isfinite(step[a])
-            _clip(trial)
-            trial_cost = _cost(trial, toward, half, y[i], w[i], beckmann)
-            moved = finite and trial_cost < cost
-            if moved:
-                theta[i, :] = trial
-                done = cost - trial_cost <= tol * cost
-                cost = trial_cost
-                lam /= 3
-                if done:
-                    break
-            else:
-                lam *= 4
-                if lam > DAMPING_MAX:
-                    break
-        costs[i] = cost
+        costs[i] = _steps(theta[i], toward, half, y[i], w[i], beckmann, n_iter, tol, work)
     return costs
+
+
+@njit(cache=True)
+def _scratch():  # pragma: no cover - compiled
+    """One pixel's scratch arrays of :func:`_steps`: ``J^T W J``, ``J^T W r``, the damped system,
+    its right-hand side, the step and the trial parameters."""
+    return (np.empty((6, 6)), np.empty(6), np.empty((6, 6)), np.empty(6), np.empty(6),
+            np.empty(6))
+
+
+@njit(cache=True, nogil=True)
+def _steps(theta, toward, half, y, w, beckmann, n_iter, tol, work):  # pragma: no cover
+    """:func:`levenberg_marquardt` of one pixel's ``theta (6,)`` (in place), values and weights
+    ``y``, ``w (M,)``, with the scratch arrays ``work`` (:func:`_scratch`); its final cost."""
+    jtj, grad, system, rhs, step, trial = work
+    _clip(theta)
+    cost = _cost(theta, toward, half, y, w, beckmann)
+    lam = 1e-2
+    moved = True  # the normal equations are those of theta until it moves
+    for _ in range(n_iter):
+        if moved:
+            _system(theta, toward, half, y, w, beckmann, jtj, grad)
+        for a in range(6):
+            for b in range(6):
+                system[a, b] = jtj[a, b]
+            system[a, a] += lam * (jtj[a, a] + 1e-12)
+            rhs[a] = -grad[a]
+        _solve(system, rhs, step)
+        finite = True
+        for a in range(6):
+            trial[a] = theta[a] + step[a]
+            finite = finite and np.isfinite(step[a])
+        _clip(trial)
+        trial_cost = _cost(trial, toward, half, y, w, beckmann)
+        moved = finite and trial_cost < cost
+        if moved:
+            theta[:] = trial
+            done = cost - trial_cost <= tol * cost
+            cost = trial_cost
+            lam /= 3
+            if done:
+                break
+        else:
+            lam *= 4
+            if lam > DAMPING_MAX:
+                break
+    return cost
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def fit_colour(rgb, toward, half, beckmann, luma, log_starts, start_iter, n_iter, robust_iter,
+               tol, robust_scale, out):  # pragma: no cover - compiled
+    """:func:`ltmstore.solve.physical.fit_colour` of pixels ``rgb (n, M, 3)`` (float32, linear)
+    at far lights ``toward``, ``half (3, M)`` (float32), into ``out (n, 3, 6)`` (float64), one
+    pixel at a time with no ``(n, M)`` temporaries: the luminance (weights ``luma``), its fit
+    from the flat and the mirror start (``log_starts``: their log alpha) ``start_iter`` steps
+    each, ``n_iter`` more from the better, Cauchy weights of scale ``robust_scale`` robust
+    standard deviations and ``robust_iter`` steps with them; then each channel's ``rho, k, a``
+    at that geometry by weighted least squares. The same operations as NumPy's, their sums in
+    another order (float32 rounding)."""
+    m = rgb.shape[1]
+    lum = np.empty(m)
+    y, w, ones = np.empty(m, np.float32), np.empty(m, np.float32), np.ones(m, np.float32)
+    cos, lobe, res = np.empty(m, np.float32), np.empty(m, np.float32), np.empty(m)
+    work = _scratch()
+    starts = np.zeros((2, 6))
+    for i in range(rgb.shape[0]):
+        for c in range(m):
+            lum[c] = luma[0] * rgb[i, c, 0] + luma[1] * rgb[i, c, 1] + luma[2] * rgb[i, c, 2]
+            y[c] = lum[c]
+        brightest = np.argmax(lum)
+        starts[:] = 0.0
+        starts[1, 0] = -half[0, brightest] / half[2, brightest]
+        starts[1, 1] = -half[1, brightest] / half[2, brightest]
+        costs = np.empty(2)
+        for s in range(2):
+            starts[s, 4] = log_starts[s]
+            _clip(starts[s])
+            _linear(starts[s], toward, half, beckmann, y, ones, False, cos, lobe, starts[s])
+            costs[s] = _steps(starts[s], toward, half, y, ones, beckmann, start_iter, tol, work)
+        theta = starts[1] if costs[1] < costs[0] else starts[0]  # the mirror where strictly better
+        _steps(theta, toward, half, y, ones, beckmann, n_iter, tol, work)
+        _robust(theta, toward, half, beckmann, lum, robust_scale, cos, lobe, res, w)
+        _steps(theta, toward, half, y, w, beckmann, robust_iter, tol, work)
+        for c in range(3):
+            out[i, c] = theta
+            for k in range(m):
+                y[k] = rgb[i, k, c]
+            _linear(theta, toward, half, beckmann, y, w, not beckmann, cos, lobe, out[i, c])
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _geometry(theta, toward, half, beckmann, cos, lobe):  # pragma: no cover - compiled
+    """:func:`_shading` of ``theta (6,)``'s normal and roughness, the values cast to float32
+    and ``alpha^2`` by float32's ``exp`` (as NumPy's :func:`ltmstore.solve.physical._basis`)."""
+    p, q = np.float32(theta[0]), np.float32(theta[1])
+    a2 = np.exp(np.float32(2) * np.float32(theta[4]))
+    _shading(p, q, a2, toward, half, beckmann, cos, lobe)
+
+
+@njit(cache=True, error_model="numpy")
+def _linear(theta, toward, half, beckmann, y, w, flat_lobe, cos, lobe,
+            out):  # pragma: no cover - compiled
+    """``out (6,)``: ``theta`` with ``rho, k, a`` replaced by their non-negative weighted least
+    squares at its normal and roughness (float32 sums, the 3 x 3 system in float64), as
+    :func:`ltmstore.solve.physical._linear_terms`; ``flat_lobe``: no lobe where the roughness is
+    at its largest (GGX's there is as flat as the floor: see
+    :func:`ltmstore.solve.physical.fit_colour`)."""
+    _geometry(theta, toward, half, beckmann, cos, lobe)
+    if flat_lobe and theta[4] >= LOG_ALPHA[1]:
+        lobe[:] = 0.0
+    f0 = np.float32(0.0)
+    s00 = s10 = s11 = s20 = s21 = s22 = b0 = b1 = b2 = f0
+    for c in range(len(y)):
+        w0, w1, w2 = w[c] * cos[c], w[c] * lobe[c], w[c]
+        s00 += w0 * cos[c]
+        s10 += w1 * cos[c]
+        s11 += w1 * lobe[c]
+        s20 += w0
+        s21 += w1
+        s22 += w2
+        b0 += w0 * y[c]
+        b1 += w1 * y[c]
+        b2 += w2 * y[c]
+    a = np.array([[s00 + 1e-12, s10, s20], [s10, s11 + 1e-12, s21], [s20, s21, s22 + 1e-12]])
+    coef = np.empty(3)
+    _gauss(a, np.array([b0, b1, b2], dtype=np.float64), coef, 3)
+    out[:] = theta
+    out[2], out[3], out[5] = max(coef[0], 0.0), max(coef[1], 0.0), max(coef[2], 0.0)
+
+
+@njit(cache=True, error_model="numpy")
+def _robust(theta, toward, half, beckmann, lum, scale, cos, lobe, res,
+            w):  # pragma: no cover - compiled
+    """Cauchy weights ``w (M,)`` of one pixel's residuals against its luminance ``lum (M,)``
+    over ``scale`` of their robust standard deviation, as
+    :func:`ltmstore.solve.physical._robust_weights` with every light observed."""
+    _geometry(theta, toward, half, beckmann, cos, lobe)
+    rho, k, floor = np.float32(theta[2]), np.float32(theta[3]), np.float32(theta[5])
+    top = 0.0
+    for c in range(len(lum)):
+        res[c] = (rho * cos[c] + k * lobe[c] + floor) - lum[c]
+        top = max(top, abs(lum[c]))
+    spread = scale * 1.4826 * np.median(np.abs(res)) + max(1e-9 * top, 1e-30)
+    for c in range(len(lum)):
+        r = res[c] / spread
+        w[c] = 1.0 / (1.0 + r * r)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -353,3 +482,5 @@ def warm_up() -> None:
     lights.flags.writeable = False  # as physical.far_lights' (broadcast) rows: one signature
     values = np.ones((1, 2), dtype=np.float32)
     levenberg_marquardt(theta, lights, lights, values, values, False, 1, 0.0)
+    fit_colour(np.ones((1, 2, 3), dtype=np.float32), lights, lights, False, np.ones(3),
+               np.zeros(2), 1, 1, 1, 0.0, 1.0, np.empty((1, 3, 6)))
