@@ -23,14 +23,15 @@ _CR_RED, _CB_BLUE = np.float32(1.402), np.float32(1.772)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def linear(y, cb, cr, exposure, color, out):  # pragma: no cover - compiled
+def linear(y, cb, cr, exposure, color, top, out):  # pragma: no cover - compiled
     """``out (n, p, 3)`` (``color``) or ``(n, p, 1)``: the linear RGB (or Y) of ``p`` pixels of
     ``n`` photographs, ``y``, ``cb``, ``cr`` ``(n, p)`` float32 (``cb``, ``cr`` ignored without
-    ``color``), clipped at 0, divided by ``exposure (n,)`` float32 and clipped at 1, each step
-    in float32 as :func:`ltmstore.core.dims.rgb_from_ycbcr`, ``np.clip`` and
+    ``color``), clipped at 0, divided by ``exposure (n,)`` float32 and clipped at ``top``
+    (float32: 1 for the sRGB encoding, infinity for none), each step in float32 as
+    :func:`ltmstore.core.dims.rgb_from_ycbcr`, ``np.clip`` and
     :func:`ltmstore.core.transfer.linear_to_srgb` take it (NaN stays NaN)."""
     n, p = y.shape
-    zero, one = np.float32(0), np.float32(1)
+    zero, one = np.float32(0), top
     for i in range(n):
         for j in range(p):
             if color:

@@ -564,7 +564,7 @@ def _linear(*planes: np.ndarray, exposure: np.ndarray, compiled: bool) -> np.nda
         out = np.empty((*planes[0].shape, 3 if color else 1), np.float32)
         y, cb, cr = planes if color else planes * 3  # the chroma ignored without colour
         far_sums.linear(*(p.reshape(len(p), -1) for p in (y, cb, cr)), exposure, color,
-                        out.reshape(len(out), -1, out.shape[-1]))
+                        np.float32(1), out.reshape(len(out), -1, out.shape[-1]))
         return out
     scale = exposure.reshape(-1, 1, 1, 1)
     if color:

@@ -10,6 +10,7 @@ import zarr
 from dome_helpers import RINGS, dome, flash, relit_error, rendered, surface, write_capture
 
 from ltmstore.cli import main
+from ltmstore.core.dims import rgb_from_ycbcr
 from ltmstore.core.errors import LtmError
 from ltmstore.core.store import open_store
 from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
@@ -19,6 +20,20 @@ from ltmstore.stages import surface as sf
 from ltmstore.stages.ingest_rti import ingest_rti
 from ltmstore.stages.reconstruct import reconstruct
 from ltmstore.stages.relight import relight
+
+
+def test_the_frames_colour_is_numpys_bit_for_bit():
+    """The surface's linear RGB of stored Y, Cb, Cr (one compiled pass) is NumPy's float32
+    passes' exactly: out-of-gamut values above 1 kept, negative ones clipped, NaN kept; frames
+    of rows or of sampled pixels alike."""
+    rng = np.random.default_rng(0)
+    y, cb, cr = (rng.uniform(-0.6, 1.6, (5, 7, 9)).astype(np.float16) for _ in range(3))
+    y[0, 0, 0] = np.nan
+    expected = np.stack([np.maximum(c, 0) for c in rgb_from_ycbcr(
+        *(v.astype(np.float32) for v in (y, cb, cr)))], axis=-1)
+    assert (expected > 1).any() and expected.dtype == np.float32
+    np.testing.assert_array_equal(sf._rgb(y, cb, cr), expected)
+    np.testing.assert_array_equal(sf._rgb(y[:, 2], cb[:, 2], cr[:, 2]), expected[:, 2])
 
 
 def test_a_blend_is_named_and_mixed_as_chosen():
