@@ -291,7 +291,7 @@ def fit_colour(rgb, toward, half, beckmann, luma, log_starts, start_iter, n_iter
     y, w, ones = np.empty(m, np.float32), np.empty(m, np.float32), np.ones(m, np.float32)
     cos, lobe, res = np.empty(m, np.float32), np.empty(m, np.float32), np.empty(m)
     work = _scratch()
-    starts = np.zeros((2, 6))
+    starts, costs = np.zeros((2, 6)), np.empty(2)
     for i in range(rgb.shape[0]):
         for c in range(m):
             lum[c] = luma[0] * rgb[i, c, 0] + luma[1] * rgb[i, c, 1] + luma[2] * rgb[i, c, 2]
@@ -300,7 +300,6 @@ def fit_colour(rgb, toward, half, beckmann, luma, log_starts, start_iter, n_iter
         starts[:] = 0.0
         starts[1, 0] = -half[0, brightest] / half[2, brightest]
         starts[1, 1] = -half[1, brightest] / half[2, brightest]
-        costs = np.empty(2)
         for s in range(2):
             starts[s, 4] = log_starts[s]
             _clip(starts[s])

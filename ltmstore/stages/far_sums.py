@@ -31,7 +31,7 @@ def linear(y, cb, cr, exposure, color, top, out):  # pragma: no cover - compiled
     :func:`ltmstore.core.dims.rgb_from_ycbcr`, ``np.clip`` and
     :func:`ltmstore.core.transfer.linear_to_srgb` take it (NaN stays NaN)."""
     n, p = y.shape
-    zero, one = np.float32(0), top
+    zero = np.float32(0)
     for i in range(n):
         for j in range(p):
             if color:
@@ -43,10 +43,10 @@ def linear(y, cb, cr, exposure, color, top, out):  # pragma: no cover - compiled
                           (zero if b < zero else b) / exposure[i])
                 for c in range(3):
                     v = values[c]
-                    out[i, j, c] = one if v > one else v
+                    out[i, j, c] = top if v > top else v
             else:
                 v = y[i, j] / exposure[i]
-                out[i, j, 0] = zero if v < zero else (one if v > one else v)
+                out[i, j, 0] = zero if v < zero else (top if v > top else v)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
