@@ -152,6 +152,7 @@ for lobe in physical.LOBES:
     lights = physical.far_lights(directions, 200, lobe)
     y = physical._model(theta, lights).astype(np.float32)
     out.append(physical.fit_parameters(y, np.ones_like(y), lights)[0])
+    out.append(physical.fit_colour(np.repeat(y[..., None], 3, axis=-1), lights)[:, 0])
 lattice = Lattice(bounds=((-0.2, 0.2), (-0.2, 0.2)), shape=(16, 16), dims=("r", "s"))
 near = physical.near_lights(Geometry(lattice, 0.3, rng.uniform(-0.05, 0.05, (200, 2))))
 y = physical._model(theta, near).astype(np.float32)
