@@ -248,17 +248,7 @@ def _steps(theta, toward, half, y, w, beckmann, n_iter, tol, work):  # pragma: n
     for _ in range(n_iter):
         if moved:
             _system(theta, toward, half, y, w, beckmann, jtj, grad)
-        for a in range(6):
-            for b in range(6):
-                system[a, b] = jtj[a, b]
-            system[a, a] += lam * (jtj[a, a] + 1e-12)
-            rhs[a] = -grad[a]
-        _solve(system, rhs, step)
-        finite = True
-        for a in range(6):
-            trial[a] = theta[a] + step[a]
-            finite = finite and np.isfinite(step[a])
-        _clip(trial)
+        finite = _trial(theta, jtj, grad, lam, system, rhs, step, trial)
         trial_cost = _cost(trial, toward, half, y, w, beckmann)
         moved = finite and trial_cost < cost
         if moved:
@@ -273,6 +263,24 @@ def _steps(theta, toward, half, y, w, beckmann, n_iter, tol, work):  # pragma: n
             if lam > DAMPING_MAX:
                 break
     return cost
+
+
+@njit(cache=True, inline="always")
+def _trial(theta, jtj, grad, lam, system, rhs, step, trial):  # pragma: no cover - compiled
+    """``trial (6,)``: ``theta`` plus the step of the normal equations ``jtj``, ``grad`` damped
+    by ``lam`` (Marquardt's scaling), within the bounds; whether the step is finite."""
+    for a in range(6):
+        for b in range(6):
+            system[a, b] = jtj[a, b]
+        system[a, a] += lam * (jtj[a, a] + 1e-12)
+        rhs[a] = -grad[a]
+    _solve(system, rhs, step)
+    finite = True
+    for a in range(6):
+        trial[a] = theta[a] + step[a]
+        finite = finite and np.isfinite(step[a])
+    _clip(trial)
+    return finite
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -303,17 +311,20 @@ def fit_colour(rgb, toward, half, beckmann, luma, log_starts, start_iter, n_iter
         for s in range(2):
             starts[s, 4] = log_starts[s]
             _clip(starts[s])
-            _linear(starts[s], toward, half, beckmann, y, ones, False, cos, lobe, starts[s])
+            _geometry(starts[s], toward, half, beckmann, cos, lobe)
+            _linear(starts[s], cos, lobe, y, ones, starts[s])
             costs[s] = _steps(starts[s], toward, half, y, ones, beckmann, start_iter, tol, work)
         theta = starts[1] if costs[1] < costs[0] else starts[0]  # the mirror where strictly better
         _steps(theta, toward, half, y, ones, beckmann, n_iter, tol, work)
         _robust(theta, toward, half, beckmann, lum, robust_scale, cos, lobe, res, w)
         _steps(theta, toward, half, y, w, beckmann, robust_iter, tol, work)
+        _geometry(theta, toward, half, beckmann, cos, lobe)  # the same for the three channels
+        if not beckmann and theta[4] >= LOG_ALPHA[1]:
+            lobe[:] = 0.0  # GGX's lobe as flat as the floor (physical.fit_colour)
         for c in range(3):
-            out[i, c] = theta
             for k in range(m):
                 y[k] = rgb[i, k, c]
-            _linear(theta, toward, half, beckmann, y, w, not beckmann, cos, lobe, out[i, c])
+            _linear(theta, cos, lobe, y, w, out[i, c])
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -326,16 +337,11 @@ def _geometry(theta, toward, half, beckmann, cos, lobe):  # pragma: no cover - c
 
 
 @njit(cache=True, error_model="numpy")
-def _linear(theta, toward, half, beckmann, y, w, flat_lobe, cos, lobe,
-            out):  # pragma: no cover - compiled
+def _linear(theta, cos, lobe, y, w, out):  # pragma: no cover - compiled
     """``out (6,)``: ``theta`` with ``rho, k, a`` replaced by their non-negative weighted least
-    squares at its normal and roughness (float32 sums, the 3 x 3 system in float64), as
-    :func:`ltmstore.solve.physical._linear_terms`; ``flat_lobe``: no lobe where the roughness is
-    at its largest (GGX's there is as flat as the floor: see
-    :func:`ltmstore.solve.physical.fit_colour`)."""
-    _geometry(theta, toward, half, beckmann, cos, lobe)
-    if flat_lobe and theta[4] >= LOG_ALPHA[1]:
-        lobe[:] = 0.0
+    squares on the shading ``cos``, ``lobe (M,)`` of its normal and roughness (:func:`_geometry`;
+    float32 sums, the 3 x 3 system in float64), as
+    :func:`ltmstore.solve.physical._linear_terms`."""
     f0 = np.float32(0.0)
     s00 = s10 = s11 = s20 = s21 = s22 = b0 = b1 = b2 = f0
     for c in range(len(y)):

@@ -26,7 +26,7 @@ from ltmstore.solve.physical_far import (  # one pixel's 6 x 6 step and bounds, 
     LOG_ALPHA,
     SLOPE_MAX,
     _clip,
-    _solve,
+    _trial,
 )
 
 # the bounds _clip keeps, the fit and the model values
@@ -152,17 +152,7 @@ def levenberg_marquardt(theta, toward, half, g, y, w, n_iter):  # pragma: no cov
         for _ in range(n_iter):
             if moved:
                 _system(theta[i], toward, half, g, y, w, i, jtj, grad)
-            for a in range(6):
-                for b in range(6):
-                    system[a, b] = jtj[a, b]
-                system[a, a] += lam * (jtj[a, a] + 1e-12)
-                rhs[a] = -grad[a]
-            _solve(system, rhs, step)
-            finite = True
-            for a in range(6):
-                trial[a] = theta[i, a] + step[a]
-                finite = finite and np.isfinite(step[a])
-            _clip(trial)
+            finite = _trial(theta[i], jtj, grad, lam, system, rhs, step, trial)
             trial_cost = _cost(trial, toward, half, g, y, w, i)
             moved = finite and trial_cost < cost
             if moved:
