@@ -257,11 +257,16 @@ def test_a_preview_relights_every_nth_pixel_and_an_old_full_render_yields(served
     assert image.shape == (32, 32, 3)
 
 
-def test_view_stops_cleanly_on_ctrl_c(served):
-    """After the other tests of `served`: it stops the module's server."""
-    proc, _ = served
-    proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=10)
+def test_view_stops_cleanly_on_ctrl_c(small_store):
+    """A server of its own, after it has relit once (stopping the module's server made the
+    other tests depend on running before this one)."""
+    import urllib.request
+
+    with served_view(small_store) as (proc, url):
+        with urllib.request.urlopen(f"{url}relight?u=0.5&v=-0.25", timeout=60) as resp:
+            assert resp.status == 200
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
     assert proc.returncode == 0
     assert err.strip().splitlines() == ["ltm view: stopped"]
 
