@@ -365,9 +365,9 @@ def test_the_command_line_shows_one_error_line(tmp_path, case):
 
 
 def test_report_the_case_count():
-    """Printed with ``-s``: the cases the generators above ran (1,410 measured), at least the
-    1,000 the audit asked for; skipped when only some of them ran (``-k``)."""
-    if set(HOSTILE_CASES) != set(CASES):
-        pytest.skip(f"only the {sorted(HOSTILE_CASES)} generators ran")
-    assert sum(HOSTILE_CASES.values()) >= sum(CASES.values()) >= 1000, HOSTILE_CASES
-    print(f"\nhostile cases generated: {dict(HOSTILE_CASES)} = {sum(HOSTILE_CASES.values())}")
+    """The generators above ask for at least the 1,000 cases the audit asked for (1,410), each
+    asserting that it ran its count; printed with ``-s`` where they ran before this test (it
+    does not depend on the order: a shuffled suite had skipped it)."""
+    assert sum(CASES.values()) >= 1000, CASES
+    if set(HOSTILE_CASES) == set(CASES):
+        print(f"\nhostile cases generated: {dict(HOSTILE_CASES)} = {sum(HOSTILE_CASES.values())}")
