@@ -249,8 +249,8 @@ def _white(rgb: np.ndarray) -> bool:
     if rgb.dtype.kind != "u":
         return False
     top = np.iinfo(rgb.dtype).max
-    # the first row first: a whole decoded photograph (often a view of negative stride) is
-    # slow to reduce, and almost every photograph has a pixel below white in its first row
+    # the first row first: almost every photograph has a pixel below white there, and a whole
+    # photograph is slow to reduce
     return bool(rgb[0].min() == top) and bool(rgb.min() == top)
 
 

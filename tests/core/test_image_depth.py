@@ -71,6 +71,18 @@ def test_unknown_depth_is_refused(depth):
         check_depth(depth)
 
 
+@pytest.mark.parametrize("suffix", [".png", ".tif", ".jpg"])
+def test_8_bit_rgb_decodes_in_rgb_order_and_contiguous(tmp_path, suffix):
+    """Channels in RGB order, and one contiguous array: a flipped view of OpenCV's BGR made
+    every later pass over a large photograph copy it first."""
+    image = np.zeros((9, 11, 3), dtype=np.uint8)
+    image[..., 0], image[..., 2] = 200, 40  # red and blue apart, flat (JPEG keeps it)
+    path = write_image(tmp_path / f"a{suffix}", image)
+    back = decode_image(path.read_bytes(), path.name)
+    assert back.dtype == np.uint8 and back.flags.c_contiguous
+    np.testing.assert_allclose(back, image, atol=2)  # JPEG's rounding
+
+
 @pytest.mark.parametrize("suffix", [".png", ".tif", ".tiff"])
 def test_16_bit_rgb_written_and_read_back_exactly(tmp_path, suffix):
     image = RNG.integers(0, 65536, (9, 11, 3), dtype=np.uint16)
