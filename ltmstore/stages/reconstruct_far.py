@@ -65,7 +65,7 @@ from ltmstore.core import store as st
 from ltmstore.core.dims import EXPECTED_ERROR, FRAMES, LTM, LUMA, UNSUPPORTED, Lattice
 from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import DISK, FAR, coordinate_attrs, disk_to_direction
-from ltmstore.core.transfer import linear_to_srgb, srgb_to_linear
+from ltmstore.core.transfer import half_to_srgb, linear_to_srgb, srgb_to_linear
 from ltmstore.solve import Geometry, physical, shadows
 from ltmstore.solve.lightfit import Model, candidates, loo_operator, pick, rbf_models
 from ltmstore.stages import surface as sf
@@ -205,11 +205,11 @@ class FarFit:
         (:data:`CHOICE_PIXELS` of them)."""
         rows, cols = self.plan.tile_region(index)
         values = self.frames[:, rows, cols].reshape(len(self.frames), -1)
-        values = (values.astype(np.float32) if gain is None  # float16 to float32: exact
-                  else values / gain[:, None])
         if choice:
             values = values[:, :: max(1, values.shape[1] // CHOICE_PIXELS)]
-        return rows, cols, linear_to_srgb(values)
+        if gain is None:  # float16 as stored: encoded by a table
+            return rows, cols, half_to_srgb(values)
+        return rows, cols, linear_to_srgb(values / gain[:, None])
 
     def choose(self, pool: ThreadPoolExecutor) -> np.ndarray:
         """Each tile's leave-one-out MSE of every model (kept as :attr:`mse`) and its model

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ltmstore.core.transfer import linear_to_srgb, power, srgb_to_linear
+from ltmstore.core.transfer import half_to_srgb, linear_to_srgb, power, srgb_to_linear
 
 V = np.linspace(0, 1, 1_000_001)
 
@@ -31,3 +31,13 @@ def test_power_at_the_edges():
     out = np.float32([0.25, 0.5])
     assert power(out, 0.5, out=out) is out
     np.testing.assert_allclose(out, [0.5, 0.5**0.5], rtol=1e-6)
+
+
+def test_the_float16_table_is_the_curve_bit_for_bit():
+    """Every float16 (negative, subnormal, above 1, infinite, NaN) encodes as the curve does,
+    whatever the array's shape and strides."""
+    every = np.arange(2**16, dtype=np.uint16).view(np.float16)
+    np.testing.assert_array_equal(half_to_srgb(every), linear_to_srgb(every.astype(np.float32)))
+    tile = every.reshape(256, 256)[::3, 1::2]
+    assert half_to_srgb(tile).shape == tile.shape
+    np.testing.assert_array_equal(half_to_srgb(tile), linear_to_srgb(tile.astype(np.float32)))
