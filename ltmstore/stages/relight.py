@@ -30,6 +30,7 @@ the inner chunks of at most 16 cells per tile.
 
 from __future__ import annotations
 
+import functools
 import os
 import warnings
 from collections.abc import Iterator
@@ -75,7 +76,6 @@ from ltmstore.core.transfer import (
     encode,
     exposure_gain,
     linear_to_srgb,
-    power,
     srgb_to_linear,
 )
 from ltmstore.solve import shadows
@@ -587,31 +587,32 @@ def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, cod
     rows = tuple(part for n in planes[0].chunks[1] for part in _split(n, most))
     compiled = height * width * len(train) >= COMPILED_WORK
     planes = [p.rechunk((-1, rows, cols)) for p in planes]
-    linear = da.blockwise(_linear, "tyxc", *(x for p in planes for x in (p, "tyx")),
-                          new_axes={"c": 3 if color else 1}, dtype=np.float32,
-                          exposure=exposure, compiled=compiled)
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE] if blends else []
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
     operators = {c: _FarOperator.of(m, train, dirs, compiled) for c, m in models.items()}
     # the classic models' sums encoded as they are summed where the kernel repays it
     fusable = compiled and len(dirs) <= FUSED_LIGHTS
 
-    def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, frames: np.ndarray,
-              *values: np.ndarray) -> np.ndarray:
-        shape = frames.shape[1:] if color else frames.shape[1:-1]  # (y, x[, color])
-        frames = frames.reshape(len(frames), -1, frames.shape[-1])  # (t, pixels, c) below
+    def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, *arrays: np.ndarray
+              ) -> np.ndarray:
+        stored, values = arrays[:len(planes)], arrays[len(planes):]
+        shape = stored[0].shape[1:] + ((3,) if color else ())  # (y, x[, color])
         values = [v.reshape(-1, *v.shape[2:]) for v in values]
         where = where.ravel()
         present = np.unique(where)
         visible = {c: _visible(ds, blends[c], ys, xs, train, dirs) for c in present
                    if c in blends and blends[c].shadows}
         fused = fusable and not any(c in blends for c in present)
-        if not fused:
+        if fused:  # (t, pixels) each
+            frames = [p.reshape(len(p), -1) for p in stored]
+        else:  # (t, pixels[, c]) encoded
+            frames = _linear(*stored, exposure=exposure, compiled=compiled)
             frames = linear_to_srgb(frames if color else frames[..., 0])
+            frames = frames.reshape(len(frames), -1, *frames.shape[3:])
 
         def image(c: int, inside: np.ndarray | slice) -> np.ndarray:
             if fused:
-                out = operators[c].encoded_sum(frames[:, inside])
+                out = operators[c].encoded_sum([f[:, inside] for f in frames], exposure)
                 return out if color else out[..., 0]
             return operators[c](frames[:, inside], [v[inside] for v in values],
                                 visible.get(c), inside)
@@ -619,7 +620,7 @@ def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, cod
         if len(present) == 1:  # one model for the whole block: no copies in and out
             out = image(present[0], slice(None))
         else:
-            out = np.empty((len(dirs), frames.shape[1], *shape[2:]), np.float32)
+            out = np.empty((len(dirs), len(where), *shape[2:]), np.float32)
             for c in present:
                 inside = where == c
                 out[:, inside] = image(c, inside)
@@ -628,8 +629,8 @@ def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, cod
     index = "yx" + ("c" if color else "")
     at = (da.from_array(np.arange(height), chunks=(rows,)),  # where each block lies
           da.from_array(np.arange(width), chunks=(cols,)))
-    args = [at[0], "y", at[1], "x", da.from_array(codes, chunks=(rows, cols)), "yx",
-            linear, "tyxc"]  # without colour, c (one channel) is not the image's: one block
+    args = [at[0], "y", at[1], "x", da.from_array(codes, chunks=(rows, cols)), "yx"]
+    args += [x for p in planes for x in (p, "tyx")]
     args += [x for m in maps for x in (m, "yx" + ("k" if m.ndim == 3 else ""))]
     return da.blockwise(block, "l" + index, *args,
                         new_axes={"l": len(dirs), **({"c": 3} if color else {})},
@@ -679,15 +680,17 @@ class _FarOperator:
             weights = np.hstack([weights, -model.weight * model.smoother.weights(train, dirs)])
         return cls(model, train, dirs, weights.astype(np.float64), compiled)
 
-    def encoded_sum(self, linear: np.ndarray) -> np.ndarray:
-        """A classic model's encoded images ``(d, p, c)`` from the photographs' ``linear``
-        values ``(n, p, c)`` (:func:`_linear`, compiled), encoded as they are summed
-        (:func:`ltmstore.stages.far_sums.encoded_sum`): the values of NumPy's passes, bit for
-        bit, without their temporaries."""
+    def encoded_sum(self, stored: list[np.ndarray], exposure: np.ndarray) -> np.ndarray:
+        """A classic model's encoded images ``(d, p, c)`` from the photographs' ``stored`` Y
+        (and Cb, Cr: ``c = 3``) ``(n, p)`` and their ``exposure (n,)``, linearised and encoded
+        as they are summed (:func:`ltmstore.stages.far_sums.encoded_sum`: NumPy's values to
+        float32 rounding, without their temporaries)."""
         from ltmstore.stages import far_sums
 
-        out = np.empty((len(self.weights), *linear.shape[1:]), np.float32)
-        far_sums.encoded_sum(linear, power(linear, 1 / 2.4), self.weights, out)
+        y, cb, cr = stored if len(stored) == 3 else stored * 3  # no chroma: ignored
+        out = np.empty((len(self.weights), y.shape[1], len(stored)), np.float32)
+        far_sums.encoded_sum(y, cb, cr, exposure, len(stored) == 3, self.weights,
+                             _srgb_table(), out)
         return out
 
     def __call__(self, frames: np.ndarray, values: list[np.ndarray],
@@ -711,6 +714,14 @@ class _FarOperator:
                            for d, v in ((self.train, at), (self.dirs, to)))
         return (_weighted_sum(self.weights, np.concatenate([frames, at_train]))
                 + np.float32(blend.weight) * query)
+
+
+@functools.cache
+def _srgb_table() -> np.ndarray:
+    """:func:`ltmstore.stages.far_sums.srgb_table`, made once."""
+    from ltmstore.stages import far_sums
+
+    return far_sums.srgb_table()
 
 
 def _weighted_sum(weights: np.ndarray, values: np.ndarray) -> np.ndarray:

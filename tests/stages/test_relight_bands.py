@@ -11,6 +11,8 @@ import pytest
 from dome_helpers import RINGS, flash, write_capture
 
 from ltmstore.core.store import open_store
+from ltmstore.core.transfer import linear_to_srgb
+from ltmstore.stages import far_sums
 from ltmstore.stages import relight as rl
 from ltmstore.stages import surface as sf
 from ltmstore.stages.ingest_rti import ingest_rti
@@ -151,3 +153,19 @@ def test_the_compiled_classic_sums_relight_as_numpy_does(classic_store, monkeypa
     assert np.isfinite(numpy).all() and numpy.max() > 0.1
     np.testing.assert_allclose(fused, numpy, rtol=0, atol=2e-6)
     np.testing.assert_allclose(encoded, numpy, rtol=0, atol=2e-6)
+
+
+def test_the_compiled_encoding_is_as_close_to_srgb_as_numpys():
+    """The compiled sums' sRGB encoding (a table interpolated) is within 1.2e-7 of the curve
+    in float64 (measured 1.13e-7 on 10 million values), no further than NumPy's float32 steps
+    (2.4e-7); it clips at 0 and 1 as they do, and NaN stays NaN."""
+    v = np.random.default_rng(3).random(200_000).astype(np.float32) ** 3
+    v = np.concatenate([v, np.float32([0, 1e-30, 0.0031308, 0.0031309, 1, 1.5, -0.2, np.nan])])
+    out = np.empty((1, len(v), 1), np.float32)
+    far_sums.encoded_sum(v[None], v[None], v[None], np.ones(1, np.float32), False,
+                         np.ones((1, 1)), far_sums.srgb_table(), out)
+    x = np.clip(v.astype(np.float64), 0, 1)
+    curve = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+    ours, numpys = np.abs(out[0, :, 0] - curve), np.abs(linear_to_srgb(v) - curve)
+    assert np.nanmax(ours) < 1.2e-7 and np.nanmax(ours) <= np.nanmax(numpys)
+    assert np.isnan(out[0, -1, 0]) and out[0, -2, 0] == 0 and out[0, -3, 0] == 1
