@@ -234,7 +234,7 @@ class FarFit:
         theta, blend, gain, height = surface if surface is not None else (None,) * 4
         at_cells = None if blend is None else sf.BlendAt.of(blend, self.train, self.cells)
 
-        def fit(index: tuple[int, int]) -> np.ndarray:  # the tile's LTM; its error noted
+        def fit(index: tuple[int, int], out: np.ndarray) -> None:  # its LTM; its error noted
             rows, cols, values = self.pixels(index, gain)
             shape = (rows.stop - rows.start, cols.stop - cols.start)
             best = int(chosen[index])
@@ -251,8 +251,8 @@ class FarFit:
             rms = np.sqrt(np.mean(residual**2, axis=0))
             spread = np.ptp(values, axis=0)
             error[rows, cols] = (rms / np.where(spread > 0, spread, np.inf)).reshape(shape)
-            fitted = np.clip(fitted, 0, None)
-            return srgb_to_linear(fitted).T.reshape(*shape, *lat.shape)
+            fitted = np.clip(fitted, 0, None)  # (cells, pixels): into out's (y, x, r, s)
+            out[...] = srgb_to_linear(fitted).reshape(*lat.shape, *shape).transpose(2, 3, 0, 1)
 
         def write(shard: tuple[tuple[slice, slice], list[tuple[int, int]]]) -> int:
             (rows, cols), tiles = shard  # the shard's tiles, one Zarr write
@@ -260,8 +260,8 @@ class FarFit:
                              np.float32)
             for index in tiles:
                 r, c = self.plan.tile_region(index)
-                block[r.start - rows.start:r.stop - rows.start,
-                      c.start - cols.start:c.stop - cols.start] = fit(index)
+                fit(index, block[r.start - rows.start:r.stop - rows.start,
+                                 c.start - cols.start:c.stop - cols.start])
             ltm[rows, cols] = block
             return len(tiles)
 
