@@ -24,7 +24,7 @@ from ltmstore.core.dims import LUMA
 _RED, _GREEN, _BLUE = (np.float32(w) for w in LUMA)
 _CR_RED, _CB_BLUE = np.float32(1.402), np.float32(1.772)
 _LOW = np.float32(0.0031308)  # sRGB's straight part up to this
-_DROPPED = 13  # the float32 bits below sRGB's table (tables): it keeps 10 of the 23
+_DROPPED = 13  # the float32 bits below sRGB's table (srgb_table): it keeps 10 of 23
 _PART = (1 << _DROPPED) - 1
 
 

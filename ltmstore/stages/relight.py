@@ -595,8 +595,8 @@ def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, cod
 
     def block(ys: np.ndarray, xs: np.ndarray, where: np.ndarray, *arrays: np.ndarray
               ) -> np.ndarray:
-        stored, values = arrays[:len(planes)], arrays[len(planes):]
-        shape = stored[0].shape[1:] + ((3,) if color else ())  # (y, x[, color])
+        ycc, values = arrays[:len(planes)], arrays[len(planes):]  # Y (Cb, Cr); the surface's
+        shape = ycc[0].shape[1:] + ((3,) if color else ())  # (y, x[, color])
         values = [v.reshape(-1, *v.shape[2:]) for v in values]
         where = where.ravel()
         present = np.unique(where)
@@ -604,9 +604,9 @@ def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, cod
                    if c in blends and blends[c].shadows}
         fused = fusable and not any(c in blends for c in present)
         if fused:  # (t, pixels) each
-            frames = [p.reshape(len(p), -1) for p in stored]
+            frames = [p.reshape(len(p), -1) for p in ycc]
         else:  # (t, pixels[, c]) encoded
-            frames = _linear(*stored, exposure=exposure, compiled=compiled)
+            frames = _linear(*ycc, exposure=exposure, compiled=compiled)
             frames = linear_to_srgb(frames if color else frames[..., 0])
             frames = frames.reshape(len(frames), -1, *frames.shape[3:])
 
@@ -680,16 +680,16 @@ class _FarOperator:
             weights = np.hstack([weights, -model.weight * model.smoother.weights(train, dirs)])
         return cls(model, train, dirs, weights.astype(np.float64), compiled)
 
-    def encoded_sum(self, stored: list[np.ndarray], exposure: np.ndarray) -> np.ndarray:
-        """A classic model's encoded images ``(d, p, c)`` from the photographs' ``stored`` Y
+    def encoded_sum(self, ycc: list[np.ndarray], exposure: np.ndarray) -> np.ndarray:
+        """A classic model's encoded images ``(d, p, c)`` from the photographs' ``ycc``: Y
         (and Cb, Cr: ``c = 3``) ``(n, p)`` and their ``exposure (n,)``, linearised and encoded
         as they are summed (:func:`ltmstore.stages.far_sums.encoded_sum`: NumPy's values to
         float32 rounding, without their temporaries)."""
         from ltmstore.stages import far_sums
 
-        y, cb, cr = stored if len(stored) == 3 else stored * 3  # no chroma: ignored
-        out = np.empty((len(self.weights), y.shape[1], len(stored)), np.float32)
-        far_sums.encoded_sum(y, cb, cr, exposure, len(stored) == 3, self.weights,
+        y, cb, cr = ycc if len(ycc) == 3 else ycc * 3  # no chroma: ignored
+        out = np.empty((len(self.weights), y.shape[1], len(ycc)), np.float32)
+        far_sums.encoded_sum(y, cb, cr, exposure, len(ycc) == 3, self.weights,
                              _srgb_table(), out)
         return out
 
