@@ -16,6 +16,8 @@ store's ``ltm relight`` 24.4 against 29.2 s (``docs/benchmarks.md``).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import njit
 
@@ -37,22 +39,30 @@ def linear(y, cb, cr, exposure, color, top, out):  # pragma: no cover - compiled
     :func:`ltmstore.core.dims.rgb_from_ycbcr`, ``np.clip`` and
     :func:`ltmstore.core.transfer.linear_to_srgb` take it (NaN stays NaN)."""
     n, p = y.shape
-    zero = np.float32(0)
+    value = np.empty(3, np.float32)
     for i in range(n):
         for j in range(p):
-            if color:
-                r = y[i, j] + _CR_RED * cr[i, j]
-                b = y[i, j] + _CB_BLUE * cb[i, j]
-                g = (y[i, j] - _RED * r - _BLUE * b) / _GREEN
-                values = ((zero if r < zero else r) / exposure[i],
-                          (zero if g < zero else g) / exposure[i],
-                          (zero if b < zero else b) / exposure[i])
-                for c in range(3):
-                    v = values[c]
-                    out[i, j, c] = top if v > top else v
-            else:
-                v = y[i, j] / exposure[i]
-                out[i, j, 0] = zero if v < zero else (top if v > top else v)
+            _pixel(y[i, j], cb[i, j], cr[i, j], exposure[i], color, value)
+            for c in range(out.shape[2]):
+                out[i, j, c] = top if value[c] > top else value[c]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _pixel(y, cb, cr, exposure, color, value):  # pragma: no cover - compiled
+    """``value (3,)``: one photograph's pixel as linear RGB (``color``; else its Y in
+    ``value[0]``), clipped at 0 and divided by its ``exposure``, in float32 as
+    :func:`ltmstore.core.dims.rgb_from_ycbcr` and ``np.clip`` take it (NaN stays NaN)."""
+    zero = np.float32(0)
+    if color:
+        r = y + _CR_RED * cr
+        b = y + _CB_BLUE * cb
+        g = (y - _RED * r - _BLUE * b) / _GREEN
+        value[0] = (zero if r < zero else r) / exposure
+        value[1] = (zero if g < zero else g) / exposure
+        value[2] = (zero if b < zero else b) / exposure
+    else:
+        v = y / exposure
+        value[0] = zero if v < zero else v
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -65,21 +75,11 @@ def encoded_sum(y, cb, cr, exposure, color, weights, srgb, out):  # pragma: no c
     n, p = y.shape
     d, channels = weights.shape[0], out.shape[2]
     sums = np.zeros((d, p, channels))
-    zero, one = np.float32(0), np.float32(1)
+    one = np.float32(1)
     value, bits = np.empty(3, np.float32), np.empty(1, np.float32)
     for i in range(n):
         for j in range(p):
-            luma = y[i, j]
-            if color:
-                r = luma + _CR_RED * cr[i, j]
-                b = luma + _CB_BLUE * cb[i, j]
-                g = (luma - _RED * r - _BLUE * b) / _GREEN
-                value[0] = (zero if r < zero else r) / exposure[i]
-                value[1] = (zero if g < zero else g) / exposure[i]
-                value[2] = (zero if b < zero else b) / exposure[i]
-            else:
-                v = luma / exposure[i]
-                value[0] = zero if v < zero else v
+            _pixel(y[i, j], cb[i, j], cr[i, j], exposure[i], color, value)
             for c in range(channels):
                 v = _encode(one if value[c] > one else value[c], srgb, bits)
                 for k in range(d):
@@ -106,6 +106,7 @@ def _encode(v, srgb, bits):  # pragma: no cover - compiled
     return srgb[at] + part * (srgb[at + 1] - srgb[at])
 
 
+@functools.cache
 def srgb_table() -> np.ndarray:
     """:func:`encoded_sum`'s table: sRGB's encoding (in float64, then float32) at every float32
     in ``[0, 1]`` whose last :data:`_DROPPED` bits are 0 (130,050 values). Interpolated, within

@@ -30,7 +30,6 @@ the inner chunks of at most 16 cells per tile.
 
 from __future__ import annotations
 
-import functools
 import os
 import warnings
 from collections.abc import Iterator
@@ -690,7 +689,7 @@ class _FarOperator:
         y, cb, cr = ycc if len(ycc) == 3 else ycc * 3  # no chroma: ignored
         out = np.empty((len(self.weights), y.shape[1], len(ycc)), np.float32)
         far_sums.encoded_sum(y, cb, cr, exposure, len(ycc) == 3, self.weights,
-                             _srgb_table(), out)
+                             far_sums.srgb_table(), out)
         return out
 
     def __call__(self, frames: np.ndarray, values: list[np.ndarray],
@@ -714,14 +713,6 @@ class _FarOperator:
                            for d, v in ((self.train, at), (self.dirs, to)))
         return (_weighted_sum(self.weights, np.concatenate([frames, at_train]))
                 + np.float32(blend.weight) * query)
-
-
-@functools.cache
-def _srgb_table() -> np.ndarray:
-    """:func:`ltmstore.stages.far_sums.srgb_table`, made once."""
-    from ltmstore.stages import far_sums
-
-    return far_sums.srgb_table()
 
 
 def _weighted_sum(weights: np.ndarray, values: np.ndarray) -> np.ndarray:
