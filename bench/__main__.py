@@ -85,6 +85,8 @@ BENCHMARKS = {
                                           "at camera B 720 px: product against oracle"),
     "openlime_fidelity": Benchmark("openlime_fidelity.py", "the web export drawn by OpenLIME "
                                    "at real captures' held-out lights"),
+    "neural_web": Benchmark("neural_web.py", "OpenLIME's neural layer's network trained on a "
+                            "store: held-out PSNR it could reach"),
     "codec_split": Benchmark("codec_split.py", "where camera B's H.264 loss lands: frame "
                              "error by type, LTM error on observed and filled cells"),
     "codec_bitrate": Benchmark("codec_bitrate.py", "camera B's H.264 by its bits per pixel: "
