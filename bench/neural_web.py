@@ -25,6 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from ltmstore.core.lights import disk_to_direction  # noqa: E402
 from ltmstore.share import fidelity, pca_web  # noqa: E402
 from ltmstore.share.light_grid import grid_directions  # noqa: E402
 
@@ -104,8 +105,7 @@ def trial(store: str, steps: int, hidden: int, resolution: int, seed: int = 0) -
     nodes = grid_directions(resolution)
     radius = np.sqrt(rng.uniform(0, 1, 512)) * 0.999
     angle = rng.uniform(0, 2 * np.pi, 512)
-    extra = np.column_stack([radius * np.cos(angle), radius * np.sin(angle),
-                             np.sqrt(1 - radius ** 2)])
+    extra = disk_to_direction(radius * np.cos(angle), radius * np.sin(angle))
     grid = render.sample(nodes)
     pixels = len(grid)
     target = np.concatenate([grid.reshape(pixels, -1, 3),
