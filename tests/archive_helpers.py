@@ -13,6 +13,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+import psutil
 import zarr
 from pipeline_helpers import BIN, LOOPBACK, free_port
 
@@ -62,12 +63,26 @@ def wait_for_tiles(proc: subprocess.Popen, store: Path, n: int = 1, timeout: flo
         time.sleep(0.02)
 
 
-def kill_group(proc: subprocess.Popen) -> None:
+def kill_group(proc: subprocess.Popen, timeout: float = 30) -> None:
+    """SIGKILL ``proc``'s process group and wait until none of it runs: a Dask worker of the
+    group can outlive its reaped leader by a system call (a chunk's rename, a tile's mark)."""
     try:
         os.killpg(proc.pid, signal.SIGKILL)
     except ProcessLookupError:
         pass
-    proc.wait(timeout=30)
+    proc.wait(timeout=timeout)
+    deadline = time.monotonic() + timeout
+    while any(_in_group(p, proc.pid) for p in psutil.process_iter()):
+        assert time.monotonic() < deadline, f"process group {proc.pid} outlived SIGKILL"
+        time.sleep(0.01)
+
+
+def _in_group(process: psutil.Process, pgid: int) -> bool:
+    """Whether ``process`` runs, not a zombie, in process group ``pgid``."""
+    try:
+        return os.getpgid(process.pid) == pgid and process.status() != psutil.STATUS_ZOMBIE
+    except (ProcessLookupError, psutil.NoSuchProcess):
+        return False
 
 
 @contextmanager
