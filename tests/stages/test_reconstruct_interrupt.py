@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import os
 import shutil
-import signal
 import subprocess
 import time
 
 import pytest
-from archive_helpers import ingest_only, tree_digest
+from archive_helpers import ingest_only, kill_group, tree_digest
 from pipeline_helpers import BIN, run_ltm
 
 from ltmstore import relight
@@ -77,8 +75,7 @@ def test_sigkill_mid_solve_leaves_the_stage_incomplete(ingested):
             time.sleep(0.05)
         time.sleep(0.5)  # some tiles written, most not
     finally:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+        kill_group(proc)
     assert_not_complete(ingested)
     with pytest.raises(LtmError, match="no complete ltm"):
         relight(ingested, [(0.0, 0.0)])

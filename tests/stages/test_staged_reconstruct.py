@@ -5,9 +5,7 @@ store that running them one after the other gives."""
 
 from __future__ import annotations
 
-import os
 import shutil
-import signal
 import subprocess
 import time
 from pathlib import Path
@@ -15,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zarr
+from archive_helpers import kill_group
 from dome_helpers import RINGS, dome, flash, write_capture
 from pipeline_helpers import BIN
 
@@ -131,8 +130,7 @@ def test_a_kill_during_the_refinement_leaves_the_classic_store_and_a_rerun_finis
             assert proc.poll() is None and time.monotonic() < deadline, "never reached stage 2"
             time.sleep(0.01)
     finally:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+        kill_group(proc)
     assert side_copies(store)  # killed mid-refinement: its copy is left beside the store
     assert_unrefined_and_relightable(store)
     info = reconstruct(store, progress=False)
