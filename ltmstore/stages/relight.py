@@ -95,10 +95,11 @@ FAR_FROM_DATA_DEG = 25.0  # a light further than this from every observed one ge
 # the command's: bench/relight_memory.py).
 BAND_BYTES = 2**24
 # A far-light store's surface blend is relit by the compiled kernel (physical_far.blend) where the
-# image's pixels times its photographs reach this, by NumPy below: loading Numba and the kernel
-# took 0.3 s, 15-25 % of a small capture's ltm relight (coin 1.75 -> 2.03 s), where at 1 MP the
-# kernel saves 0.8 s. Not the asked lights: at many (the web export's 256) NumPy's BLAS sums them
-# faster than the kernel's loop (the coin's export 5.4 -> 5.8 s with them counted).
+# image's pixels times its photographs and asked lights reach this, by NumPy below: loading Numba
+# and the kernel took 0.3 s, 15-25 % of a small capture's ltm relight (coin 1.75 -> 2.03 s), where
+# at 1 MP the kernel saves 0.8 s. The asked lights count since the kernel draws the web export's
+# grids (256-2,304 nodes) faster than NumPy's model: ltm export 9.5 -> 8.7 s on the coin, 15.8 ->
+# 13.0 s on the icon, 79 -> 67 s on SynthRTI (bench/results/export_speed_compiled.json).
 COMPILED_WORK = 2**24
 # Up to this many asked lights a compiled classic model sums the photographs as it encodes them
 # (far_sums.encoded_sum); at more, BLAS sums the encoded photographs faster than its loop.
@@ -584,7 +585,7 @@ def _far_image(ds: xr.Dataset, planes: list[da.Array], exposure: np.ndarray, cod
     cols = planes[0].chunks[2]  # the frames' own chunks (each read once), their rows split
     most = surface.row_bands((len(train) + len(dirs), height, max(cols)), BAND_BYTES)[0].stop
     rows = tuple(part for n in planes[0].chunks[1] for part in _split(n, most))
-    compiled = height * width * len(train) >= COMPILED_WORK
+    compiled = height * width * (len(train) + len(dirs)) >= COMPILED_WORK
     planes = [p.rechunk((-1, rows, cols)) for p in planes]
     maps = [da.asarray(ds[name].data) for name in surface.SURFACE] if blends else []
     maps = [m.rechunk((rows, cols, *(-1,) * (m.ndim - 2))) for m in maps]
