@@ -101,6 +101,11 @@ BAND_BYTES = 2**24
 # grids (256-2,304 nodes) faster than NumPy's model: ltm export 9.5 -> 8.7 s on the coin, 15.8 ->
 # 13.0 s on the icon, 79 -> 67 s on SynthRTI (bench/results/export_speed_compiled.json).
 COMPILED_WORK = 2**24
+# Above this many point lights a near-light store is relit in one pass over its cell-major LTM
+# (_relight_many), not image by image (_relight_points: tasks per light, cell and chunk of pixels;
+# 944 lights on the demo's 96 x 96 store, in colour: 21 s against 0.8-1.3 s). The web export's
+# grids: ltm export 39.2 -> 12.0 s on the demo's store (bench/results/export_speed_near.json).
+POINT_LIGHTS = 16
 # Up to this many asked lights a compiled classic model sums the photographs as it encodes them
 # (far_sums.encoded_sum); at more, BLAS sums the encoded photographs faster than its loop.
 FUSED_LIGHTS = 8
@@ -180,10 +185,17 @@ def disk_light(ltm: xr.DataArray, centre: tuple[float, float], radius: float, *,
 def extrapolation_weights(ltm: xr.DataArray, plane: Plane, directions: np.ndarray) -> np.ndarray:
     """``(n, R, S)`` weights over a near-light lattice that evaluate, at unit ``directions``,
     the least-squares order-2 hemispherical harmonics fit of every pixel's lattice values."""
+    basis, fit = _extrapolation_factors(ltm, plane, directions)
+    return (basis @ fit).reshape(len(directions), ltm.sizes["r"], ltm.sizes["s"])
+
+
+def _extrapolation_factors(ltm: xr.DataArray, plane: Plane, directions: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`extrapolation_weights` as its two factors: the HSH functions at ``directions``
+    ``(n, 9)`` and the fit of the cells' values to them ``(9, R * S)``."""
     rr, ss = np.meshgrid(ltm["r"].values, ltm["s"].values, indexing="ij")
     cells = plane_to_direction(rr.ravel(), ss.ravel(), plane.height)
-    weights = hsh_basis(directions, 2) @ np.linalg.pinv(hsh_basis(cells, 2))
-    return weights.reshape(len(directions), *rr.shape)
+    return hsh_basis(directions, 2), np.linalg.pinv(hsh_basis(cells, 2))
 
 
 def _warn_far(directions: np.ndarray, observed: np.ndarray | None) -> None:
@@ -358,22 +370,59 @@ def _relight_near(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.nda
     """Point lights on a near-light store: bilinear inside the plane, extrapolated beyond."""
     inside = np.isfinite(points).all(axis=1) & plane.contains(points[:, 0], points[:, 1])
     _warn_far(dirs, _observed_directions(ds))
-    if not inside.all() or _factored(ds, LTM):  # a factored store relights W (B l)
-        ltm = ds[LTM]
+    ltm = ds[LTM]
+    if (len(points) > POINT_LIGHTS and view is None and not _factored(ds, LTM)
+            and set(ltm.dims) == {"y", "x", "r", "s"}):
+        image = _relight_many(ds, plane, points, dirs, inside, color)
+    elif not inside.all() or _factored(ds, LTM):  # a factored store relights W (B l)
         pattern = np.zeros((len(points), ltm.sizes["r"], ltm.sizes["s"]))
         pattern[~inside] = extrapolation_weights(ltm, plane, dirs[~inside])
         for k in np.flatnonzero(inside):
             for cell, w in light_weights(ltm, points[k]):
                 pattern[k, cell["r"], cell["s"]] += w
         image = _relight_pattern(ds, xr.DataArray(pattern, dims=(LIGHT, "r", "s")), view, color)
-        if inside.all():  # as _relight_points names them
-            image = image.assign_coords({LIGHT: np.arange(len(points)),
-                                         "light_r": (LIGHT, points[:, 0]),
-                                         "light_s": (LIGHT, points[:, 1])})
     else:
         image = _relight_points(ds, points, view, color)
+    if inside.all():  # as _relight_points names them
+        image = image.assign_coords({LIGHT: np.arange(len(points)),
+                                     "light_r": (LIGHT, points[:, 0]),
+                                     "light_s": (LIGHT, points[:, 1])})
     return image.assign_coords(light_lx=(LIGHT, dirs[:, 0]), light_ly=(LIGHT, dirs[:, 1]),
                                light_lz=(LIGHT, dirs[:, 2]))
+
+
+def _relight_many(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.ndarray,
+                  inside: np.ndarray, color: bool) -> xr.DataArray:
+    """Many point lights on a 4D near-light store, in one task per chunk of pixels of its
+    cell-major LTM: the lights inside the plane by their bilinear weights (a sparse matrix,
+    4 cells a light), those beyond it by the HSH fit they evaluate (9 functions, whatever the
+    number of lights)."""
+    from scipy import sparse
+
+    ltm = ds[LTM]
+    n, size = len(points), ltm.sizes["s"]
+    bilinear = sparse.lil_array((n, ltm.sizes["r"] * size), dtype=np.float32)
+    for k in np.flatnonzero(inside):
+        for cell, w in light_weights(ltm, points[k]):
+            bilinear[k, cell["r"] * size + cell["s"]] += w
+    bilinear = bilinear.tocsr()
+    beyond = np.flatnonzero(~inside)
+    basis, fit = (f.astype(np.float32) for f in _extrapolation_factors(ltm, plane, dirs[beyond]))
+
+    def product(block: np.ndarray) -> np.ndarray:  # (y, x, r, s) -> (light, y, x)
+        pixels = block.reshape(-1, bilinear.shape[1]).astype(np.float32, copy=False).T
+        out = bilinear @ pixels
+        if len(beyond):
+            out[beyond] += basis @ (fit @ pixels)
+        return out.reshape(n, *block.shape[:2])
+
+    def apply(light_major_ltm: xr.DataArray) -> xr.DataArray:
+        cell_major = ds[str(light_major_ltm.name).removesuffix("_by_light")]
+        image = da.blockwise(product, "lyx", cell_major.transpose("y", "x", "r", "s").data,
+                             "yxrs", new_axes={"l": n}, concatenate=True, dtype=np.float32)
+        coords = {k: c for k, c in cell_major.coords.items() if set(c.dims) <= {"y", "x"}}
+        return xr.DataArray(image, dims=(LIGHT, "y", "x"), coords=coords)
+    return _finish(ds, apply, None, color)
 
 
 def _relight_points(ds: xr.Dataset, points: np.ndarray, view, color: bool) -> xr.DataArray:

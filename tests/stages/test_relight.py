@@ -93,6 +93,23 @@ def test_a_point_light_reads_only_the_chunks_it_needs(store):
     assert 0 < counting.bytes_read < total / 10, (counting.bytes_read, total)
 
 
+def test_many_lights_relight_as_image_by_image(store, monkeypatch):
+    """Above POINT_LIGHTS the lights are relit in one pass over the cell-major LTM (a sparse
+    bilinear matrix; beyond the plane, the HSH fit's two factors): the images and coordinates
+    that relighting them image by image gives, inside the plane and beyond it."""
+    from ltmstore.stages import relight as module
+
+    rng = np.random.default_rng(4)
+    lights = np.vstack([rng.uniform(-0.95, 0.95, (module.POINT_LIGHTS + 8, 2)), [[5, 0], [-2, 3]]])
+    for some in (lights, lights[:-2]):  # with lights beyond the plane, and all inside
+        together = relight(store, some)
+        with monkeypatch.context() as m:
+            m.setattr(module, "POINT_LIGHTS", len(some))
+            one_by_one = relight(store, some)
+        assert len(one_by_one.data.dask) > 4 * len(together.data.dask)  # not the same path
+        xr.testing.assert_allclose(together, one_by_one, rtol=2e-6)
+
+
 def test_bad_lights_are_clear_errors(store):
     with pytest.raises(LtmError, match="must be finite"):
         relight(store, [(np.nan, 0.0)])
