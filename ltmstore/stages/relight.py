@@ -375,11 +375,9 @@ def _relight_near(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.nda
             and set(ltm.dims) == {"y", "x", "r", "s"}):
         image = _relight_many(ds, plane, points, dirs, inside, color)
     elif not inside.all() or _factored(ds, LTM):  # a factored store relights W (B l)
-        pattern = np.zeros((len(points), ltm.sizes["r"], ltm.sizes["s"]))
+        pattern = _bilinear_matrix(ltm, points, inside).toarray().reshape(
+            len(points), ltm.sizes["r"], ltm.sizes["s"])
         pattern[~inside] = extrapolation_weights(ltm, plane, dirs[~inside])
-        for k in np.flatnonzero(inside):
-            for cell, w in light_weights(ltm, points[k]):
-                pattern[k, cell["r"], cell["s"]] += w
         image = _relight_pattern(ds, xr.DataArray(pattern, dims=(LIGHT, "r", "s")), view, color)
     else:
         image = _relight_points(ds, points, view, color)
@@ -397,15 +395,9 @@ def _relight_many(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.nda
     cell-major LTM: the lights inside the plane by their bilinear weights (a sparse matrix,
     4 cells a light), those beyond it by the HSH fit they evaluate (9 functions, whatever the
     number of lights)."""
-    from scipy import sparse
-
     ltm = ds[LTM]
-    n, size = len(points), ltm.sizes["s"]
-    bilinear = sparse.lil_array((n, ltm.sizes["r"] * size), dtype=np.float32)
-    for k in np.flatnonzero(inside):
-        for cell, w in light_weights(ltm, points[k]):
-            bilinear[k, cell["r"] * size + cell["s"]] += w
-    bilinear = bilinear.tocsr()
+    n = len(points)
+    bilinear = _bilinear_matrix(ltm, points, inside).astype(np.float32)
     beyond = np.flatnonzero(~inside)
     basis, fit = (f.astype(np.float32) for f in _extrapolation_factors(ltm, plane, dirs[beyond]))
 
@@ -423,6 +415,20 @@ def _relight_many(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.nda
         coords = {k: c for k, c in cell_major.coords.items() if set(c.dims) <= {"y", "x"}}
         return xr.DataArray(image, dims=(LIGHT, "y", "x"), coords=coords)
     return _finish(ds, apply, None, color)
+
+
+def _bilinear_matrix(ltm: xr.DataArray, points: np.ndarray, inside: np.ndarray):
+    """The bilinear weights (:func:`light_weights`) of the ``inside`` ones of ``points (n, 2)``
+    over the lattice's cells ``r * S + s``: a sparse ``(n, R * S)`` matrix, rows of the other
+    points empty."""
+    from scipy import sparse
+
+    size = ltm.sizes["s"]
+    weights = sparse.lil_array((len(points), ltm.sizes["r"] * size))
+    for k in np.flatnonzero(inside):
+        for cell, w in light_weights(ltm, points[k]):
+            weights[k, cell["r"] * size + cell["s"]] += w
+    return weights.tocsr()
 
 
 def _relight_points(ds: xr.Dataset, points: np.ndarray, view, color: bool) -> xr.DataArray:
