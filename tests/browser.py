@@ -232,6 +232,10 @@ class Browser:
              f"--user-data-dir={self.profile}", f"--window-size={width},{height}",
              "--no-first-run", "--no-default-browser-check", "--disable-extensions",
              "--hide-scrollbars", "--force-device-scale-factor=1", "--mute-audio",
+             # a page runs at full speed whatever Chromium thinks of its window (Playwright's
+             # and Puppeteer's switches): under load a page's camera start once took > 60 s
+             "--disable-background-timer-throttling", "--disable-backgrounding-occluded-windows",
+             "--disable-renderer-backgrounding",
              *args, "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         port = self._devtools_port(timeout)

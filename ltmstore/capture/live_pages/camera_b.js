@@ -42,7 +42,8 @@ async function start() {
     stream = await ltm.openCamera({facingMode: {ideal: "environment"}, frameRate: {ideal: 60}});
     const track = stream.getVideoTracks()[0];
     el("video").srcObject = stream;
-    await el("video").play();
+    // the preview is for the user; the recording does not wait on it being drawn
+    el("video").play().catch(() => {});
     const settings = track.getSettings();
     capture.resolution = [settings.width, settings.height];
     capture.frameRate = settings.frameRate;
