@@ -149,8 +149,18 @@ class VideoReader:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self._container is not None:
-            self._container.close()
+        self._close()
+
+    def _close(self) -> None:
+        """Close the file. A threaded decoder is flushed first: flushing waits for FFmpeg's
+        threads with the GIL released, so that a thread still logging a damaged frame's message
+        (PyAV's callback takes the GIL) can finish. Freeing the decoder waits for them with the
+        GIL held, and hung with such a thread (a damaged mp4 under load, once in 3,000 reads)."""
+        if self._container is None:
+            return
+        if self.threaded:
+            self._stream.codec_context.flush_buffers()
+        self._container.close()
 
     def __iter__(self) -> Iterator[np.ndarray]:
         for _, rgb in self.frames():
@@ -254,6 +264,5 @@ class VideoReader:
         self.dropped[reason] += count
 
     def _fail(self, why: str) -> None:
-        if self._container is not None:
-            self._container.close()
+        self._close()
         raise LtmError(f"video {str(self.path)!r} cannot be decoded: {why}")
