@@ -149,18 +149,8 @@ class VideoReader:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._close()
-
-    def _close(self) -> None:
-        """Close the file. A threaded decoder is flushed first: flushing waits for FFmpeg's
-        threads with the GIL released, so that a thread still logging a damaged frame's message
-        (PyAV's callback takes the GIL) can finish. Freeing the decoder waits for them with the
-        GIL held, and hung with such a thread (a damaged mp4 under load, once in 3,000 reads)."""
-        if self._container is None:
-            return
-        if self.threaded:
-            self._stream.codec_context.flush_buffers()
-        self._container.close()
+        if self._container is not None:
+            self._container.close()
 
     def __iter__(self) -> Iterator[np.ndarray]:
         for _, rgb in self.frames():
@@ -200,10 +190,23 @@ class VideoReader:
         av.logging.set_skip_repeated(False)
         try:
             with av.logging.Capture(local=not self.threaded) as logs:
-                yield from self._frames_logged(logs)
+                try:
+                    yield from self._frames_logged(logs)
+                finally:
+                    self._settle_threads()
         finally:
             av.logging.set_level(level)
             av.logging.set_skip_repeated(skip)
+
+    def _settle_threads(self) -> None:
+        """Let FFmpeg's decoding threads finish, their messages captured: flushing the decoder
+        waits for them with the GIL released. Without it, a thread could still be logging a
+        damaged frame when the decoder is freed, which waits for it with the GIL held while
+        PyAV's log callback waits for the GIL (a suite run hung so on a damaged mp4; 1 run of
+        3,000 reads beside two busy processes did), or log after the level is restored (PyAV's
+        callback then prints a traceback)."""
+        if self.threaded and self._container is not None:
+            self._stream.codec_context.flush_buffers()
 
     def _frames_logged(self, logs: list) -> Iterator[tuple[int, av.VideoFrame, list[str]]]:
         start, base = self._stream.start_time or 0, self._stream.time_base
@@ -264,5 +267,6 @@ class VideoReader:
         self.dropped[reason] += count
 
     def _fail(self, why: str) -> None:
-        self._close()
+        if self._container is not None:
+            self._container.close()
         raise LtmError(f"video {str(self.path)!r} cannot be decoded: {why}")
