@@ -205,7 +205,7 @@ class VideoReader:
         PyAV's log callback waits for the GIL (a suite run hung so on a damaged mp4; 1 run of
         3,000 reads beside two busy processes did), or log after the level is restored (PyAV's
         callback then prints a traceback)."""
-        if self.threaded and self._container is not None:
+        if self.threaded:
             self._stream.codec_context.flush_buffers()
 
     def _frames_logged(self, logs: list) -> Iterator[tuple[int, av.VideoFrame, list[str]]]:
