@@ -41,6 +41,11 @@ def by_light_name(name: str) -> str:
     return f"{name}{SUFFIX}"
 
 
+def cell_major_name(name: str) -> str:
+    """The LTM variable whose light-major copy is ``name`` (``name`` itself if it is none)."""
+    return name.removesuffix(SUFFIX)
+
+
 def pixel_chunk(image: tuple[int, int], limit: int = MAX_CHUNK_PIXELS) -> tuple[int, int]:
     """The whole image, halved along its longer side until at most ``limit`` pixels."""
     cy, cx = image

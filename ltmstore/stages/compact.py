@@ -49,7 +49,7 @@ from ltmstore.core.errors import LtmError
 from ltmstore.core.lights import FAR, light_kind
 from ltmstore.solve.validate import observed_range
 from ltmstore.stages import factors
-from ltmstore.stages.by_light import LTM_NAMES, write_by_light
+from ltmstore.stages.by_light import LTM_NAMES, by_light_name, write_by_light
 from ltmstore.stages.factors import FORMS
 
 PRECISIONS = {"float32": np.float32, "float16": np.float16}
@@ -242,7 +242,7 @@ def _factor_copy(path: Path, side: Path, dtype, drop: list[str], target_db: floa
         signal, noise = signal + s, noise + n
         stored["factor_bytes"] += sum(store_bytes(side / n) for n in (
             factored.weights_name(name), factored.basis_name(name), factored.ranks_name(name)))
-        for gone in (name, f"{name}_by_light"):
+        for gone in (name, by_light_name(name)):
             if gone in target:
                 stored["dense_bytes"] += store_bytes(side / gone)
                 del target[gone]

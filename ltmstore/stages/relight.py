@@ -81,7 +81,7 @@ from ltmstore.solve import shadows
 from ltmstore.solve.hsh import hsh_basis
 from ltmstore.solve.lightfit import Model
 from ltmstore.stages import surface
-from ltmstore.stages.by_light import light_major
+from ltmstore.stages.by_light import cell_major_name, light_major
 from ltmstore.stages.plan import METHOD_MAP
 
 LIGHT = "light"
@@ -409,7 +409,7 @@ def _relight_many(ds: xr.Dataset, plane: Plane, points: np.ndarray, dirs: np.nda
         return out.reshape(n, *block.shape[:2])
 
     def apply(light_major_ltm: xr.DataArray) -> xr.DataArray:
-        cell_major = ds[str(light_major_ltm.name).removesuffix("_by_light")]
+        cell_major = ds[cell_major_name(str(light_major_ltm.name))]
         image = da.blockwise(product, "lyx", cell_major.transpose("y", "x", "r", "s").data,
                              "yxrs", new_axes={"l": n}, concatenate=True, dtype=np.float32)
         coords = {k: c for k, c in cell_major.coords.items() if set(c.dims) <= {"y", "x"}}
@@ -457,7 +457,7 @@ def _relight_pattern(ds: xr.Dataset, lights: xr.DataArray, view, color: bool) ->
 
     def apply(ltm: xr.DataArray) -> xr.DataArray:
         ltm = ltm.isel(box)
-        name = str(ltm.name).removesuffix("_by_light")
+        name = cell_major_name(str(ltm.name))
         if views is None and _factored(ds, name):
             return _factored_dot(ds, name, ltm, pattern, box)
         if views is None:
